@@ -1,0 +1,53 @@
+"""The ``minetwin`` command line.
+
+Each subcommand lives in its own module that exposes
+``register(subparsers)``; heavy imports happen inside the handlers so that
+``minetwin --help`` stays fast. Exit codes: 0 success, 1 a failed run or
+check, 2 bad usage or bad input (message on stderr).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from cosim.errors import ValidationError
+
+COMMAND_MODULES = (
+    "cosim.commands.sizes",
+    "cosim.commands.events",
+)
+"""Modules that add subcommands, in the order ``--help`` lists them."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="minetwin",
+        description="MineTwin: particle-based mine-to-mill material tracking.")
+    parser.add_argument("--version", action="version",
+                        version=f"%(prog)s {importlib.import_module('cosim').__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "handler", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.handler(args) or 0)
+    except ValidationError as exc:
+        print(f"minetwin {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"minetwin {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,74 @@
+"""Errors raised on bad input.
+
+Every refusal names the offending field and the range it must lie in, so a
+user (or an OPC UA client receiving the message as a status text) can act
+on it without reading the code.
+"""
+
+from __future__ import annotations
+
+
+class ValidationError(ValueError):
+    """Input outside its allowed range.
+
+    Attributes
+    ----------
+    field : str
+        Name of the offending field, e.g. ``"mass"`` or ``"f"``.
+    allowed : str
+        Human-readable allowed range, e.g. ``"finite and >= 0 kg"``.
+    """
+
+    def __init__(self, field: str, allowed: str, detail: str = ""):
+        self.field = field
+        self.allowed = allowed
+        message = f"{field}: must be {allowed}"
+        if detail:
+            message += f" ({detail})"
+        super().__init__(message)
+
+
+def check_finite_range(field, values, low=None, high=None, *, low_open=False,
+                       unit="", allow_nan=False):
+    """Refuse ``values`` unless every element lies in [low, high] (or (low, high]).
+
+    Parameters
+    ----------
+    field : str
+        Field name used in the error message.
+    values : array_like
+        Values to check (any shape).
+    low, high : float or None
+        Bounds; ``None`` means unbounded.
+    low_open : bool
+        If true the lower bound is exclusive (``> low``).
+    unit : str
+        Unit appended to the bounds in the message.
+    allow_nan : bool
+        If true NaN is accepted (for optional attributes).
+    """
+    import numpy as np
+
+    arr = np.asarray(values, dtype=np.float64)
+    suffix = f" {unit}" if unit else ""
+    parts = ["finite"]
+    if low is not None:
+        parts.append(f"{'>' if low_open else '>='} {low:g}{suffix}")
+    if high is not None:
+        parts.append(f"<= {high:g}{suffix}")
+    allowed = " and ".join(parts)
+    finite = np.isfinite(arr)
+    bad = ~finite
+    if allow_nan:
+        bad &= ~np.isnan(arr)
+    checked = np.where(finite, arr, 0.0 if low is None else low + 1.0)
+    if low is not None:
+        bad |= finite & ((checked <= low) if low_open else (checked < low))
+    if high is not None:
+        bad |= finite & (checked > high)
+    if bad.any():
+        first = np.flatnonzero(bad.ravel())[0]
+        raise ValidationError(
+            field, allowed,
+            f"got {arr.ravel()[first]!r} at index {first}; {int(bad.sum())} bad value(s)")
+    return arr

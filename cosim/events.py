@@ -1,0 +1,224 @@
+"""Macro-tracking events and the SQLite event store.
+
+Source: paper section "Digital twin as a distributed particle simulation",
+the event message
+    event = {id, type, location x, time t, particles = {[n1, X_n1(t)], ...}}
+extended with the asset that emits it (DESIGN.md section 3).
+
+The store is one SQLite file (WAL mode) with two tables:
+
+``events``
+    event_id, type, asset, x, y, z [m], time [s], n_particles
+``event_particles``
+    event_id, particle_id, mass [kg], x, y, z [m], grade [-], hardness [-],
+    origin_block, f (the 16 size fractions as a float64 BLOB)
+
+Writes are buffered and inserted in batches; read back as pandas DataFrames
+(by particle id, asset, time range or type) and export to Parquet.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from dataclasses import dataclass
+from itertools import repeat
+from pathlib import Path
+
+import numpy as np
+
+from cosim.errors import ValidationError
+from cosim.sizes import N_CLASSES
+
+EVENT_TYPES = ("appear", "load", "dump", "enter", "exit", "pass", "product")
+"""Event types: material appears at a source, is loaded into or dumped from
+a vehicle, enters or exits an asset, passes a point (e.g. the jaw), or
+leaves the plant as product."""
+
+PARTICLE_FIELDS = ("mass", "position", "grade", "hardness", "origin_block", "f")
+"""Particle state recorded with each event (X_n of the paper, less velocity)."""
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS events (
+    event_id INTEGER PRIMARY KEY, type TEXT NOT NULL, asset TEXT NOT NULL,
+    x REAL, y REAL, z REAL, time REAL NOT NULL, n_particles INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS event_particles (
+    event_id INTEGER NOT NULL, particle_id INTEGER NOT NULL, mass REAL NOT NULL,
+    x REAL, y REAL, z REAL, grade REAL, hardness REAL, origin_block INTEGER, f BLOB);
+"""
+
+_INDEXES = """
+CREATE INDEX IF NOT EXISTS ix_event_particles_particle ON event_particles (particle_id);
+CREATE INDEX IF NOT EXISTS ix_event_particles_event ON event_particles (event_id);
+CREATE INDEX IF NOT EXISTS ix_events_time ON events (time);
+"""
+
+
+@dataclass
+class Event:
+    """One macro-tracking event.
+
+    ``particles`` is a batch (dict of arrays) holding ``id`` and the fields
+    of ``PARTICLE_FIELDS`` for every particle involved.
+    """
+
+    id: int
+    type: str
+    asset: str
+    location: tuple[float, float, float]
+    time: float
+    particles: dict[str, np.ndarray]
+
+
+class EventStore:
+    """SQLite event store (one file, WAL mode, batched inserts).
+
+    Parameters
+    ----------
+    path : str or Path
+        Database file; ``":memory:"`` for a throw-away store.
+    batch_rows : int
+        Particle rows buffered before an insert (default 50,000).
+    """
+
+    def __init__(self, path, batch_rows: int = 50_000):
+        self.path = str(path)
+        self._db = sqlite3.connect(self.path)
+        if self.path != ":memory:":
+            self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.execute("PRAGMA synchronous=NORMAL")
+        self._db.executescript(_SCHEMA)
+        self._batch_rows = int(batch_rows)
+        self._event_rows: list[tuple] = []
+        self._particle_rows: list[tuple] = []
+        last = self._db.execute("SELECT MAX(event_id) FROM events").fetchone()[0]
+        self._next_event_id = 0 if last is None else last + 1
+        self._indexed = False
+
+    # ----------------------------------------------------------------- write
+    def record(self, type: str, asset: str, time: float, particles, slots=None,
+               location=(0.0, 0.0, 0.0)) -> int:
+        """Record an event about ``slots`` of a ``ParticleStore``; returns the event id."""
+        batch = particles.gather(slots, fields=("id",) + PARTICLE_FIELDS)
+        return self.record_batch(type, asset, time, batch, location)
+
+    def record_batch(self, type: str, asset: str, time: float, batch: dict,
+                     location=(0.0, 0.0, 0.0)) -> int:
+        """Record an event about a particle batch (dict with ``id`` and the state fields)."""
+        if type not in EVENT_TYPES:
+            raise ValidationError("type", f"one of {list(EVENT_TYPES)}", f"got {type!r}")
+        if not np.isfinite(time):
+            raise ValidationError("time", "finite seconds", f"got {time!r}")
+        event_id = self._next_event_id
+        self._next_event_id += 1
+        ids = np.asarray(batch["id"], dtype=np.int64)
+        x, y, z = (float(c) for c in location)
+        self._event_rows.append((event_id, type, asset, x, y, z, float(time), int(ids.size)))
+        if ids.size:
+            pos = np.asarray(batch["position"], dtype=np.float64)
+            f = np.ascontiguousarray(batch["f"], dtype=np.float64)
+            self._particle_rows.extend(zip(
+                repeat(event_id), ids.tolist(), np.asarray(batch["mass"]).tolist(),
+                pos[:, 0].tolist(), pos[:, 1].tolist(), pos[:, 2].tolist(),
+                np.asarray(batch["grade"]).tolist(), np.asarray(batch["hardness"]).tolist(),
+                np.asarray(batch["origin_block"]).tolist(),
+                [row.tobytes() for row in f]))
+        if len(self._particle_rows) >= self._batch_rows:
+            self.flush()
+        return event_id
+
+    def flush(self) -> None:
+        """Write buffered events in one transaction."""
+        if not self._event_rows and not self._particle_rows:
+            return
+        with self._db:
+            self._db.executemany("INSERT INTO events VALUES (?,?,?,?,?,?,?,?)",
+                                 self._event_rows)
+            self._db.executemany(
+                "INSERT INTO event_particles VALUES (?,?,?,?,?,?,?,?,?,?)",
+                self._particle_rows)
+        self._event_rows.clear()
+        self._particle_rows.clear()
+
+    def close(self) -> None:
+        """Flush, index and close the file."""
+        self.flush()
+        self._ensure_indexes()
+        self._db.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def _ensure_indexes(self) -> None:
+        # Indexes are built once, after the bulk of the inserts, because
+        # maintaining them during inserts halves the write rate.
+        if not self._indexed:
+            self._db.executescript(_INDEXES)
+            self._indexed = True
+
+    # ------------------------------------------------------------------ read
+    def events(self, *, type: str | None = None, asset: str | None = None,
+               t0: float | None = None, t1: float | None = None):
+        """Events as a DataFrame, filtered by type, asset and time range [t0, t1)."""
+        import pandas as pd
+
+        where, args = self._filters(type, asset, t0, t1, prefix="")
+        self.flush()
+        return pd.read_sql_query(f"SELECT * FROM events{where} ORDER BY event_id",
+                                 self._db, params=args)
+
+    def particles(self, *, particle_ids=None, type: str | None = None,
+                  asset: str | None = None, t0: float | None = None,
+                  t1: float | None = None):
+        """Particle states at events, joined with the event columns.
+
+        One row per (event, particle); ``f`` is expanded to ``f0``..``f15``.
+        """
+        import pandas as pd
+
+        self.flush()
+        self._ensure_indexes()
+        where, args = self._filters(type, asset, t0, t1, prefix="e.")
+        if particle_ids is not None:
+            ids = [int(i) for i in np.atleast_1d(particle_ids)]
+            self._db.execute("CREATE TEMP TABLE IF NOT EXISTS wanted (particle_id INTEGER)")
+            self._db.execute("DELETE FROM wanted")
+            self._db.executemany("INSERT INTO wanted VALUES (?)", [(i,) for i in ids])
+            where += (" AND " if where else " WHERE ") + \
+                "p.particle_id IN (SELECT particle_id FROM wanted)"
+        query = ("SELECT e.event_id, e.type, e.asset, e.time, p.particle_id, p.mass, "
+                 "p.x, p.y, p.z, p.grade, p.hardness, p.origin_block, p.f "
+                 "FROM event_particles p JOIN events e ON e.event_id = p.event_id"
+                 f"{where} ORDER BY e.time, e.event_id, p.particle_id")
+        frame = pd.read_sql_query(query, self._db, params=args)
+        blobs = frame.pop("f")
+        fractions = (np.frombuffer(b"".join(blobs), dtype=np.float64).reshape(-1, N_CLASSES)
+                     if len(blobs) else np.empty((0, N_CLASSES)))
+        for k in range(N_CLASSES):
+            frame[f"f{k}"] = fractions[:, k]
+        return frame
+
+    def history(self, particle_id: int):
+        """The full macro-tracking history of one particle, in time order."""
+        return self.particles(particle_ids=[particle_id])
+
+    def to_parquet(self, directory) -> tuple[Path, Path]:
+        """Export to ``directory/events.parquet`` and ``directory/event_particles.parquet``."""
+        out = Path(directory)
+        out.mkdir(parents=True, exist_ok=True)
+        events_path, particles_path = out / "events.parquet", out / "event_particles.parquet"
+        self.events().to_parquet(events_path)
+        self.particles().to_parquet(particles_path)
+        return events_path, particles_path
+
+    @staticmethod
+    def _filters(type, asset, t0, t1, prefix):
+        clauses, args = [], []
+        for column, op, value in (("type", "=", type), ("asset", "=", asset),
+                                  ("time", ">=", t0), ("time", "<", t1)):
+            if value is not None:
+                clauses.append(f"{prefix}{column} {op} ?")
+                args.append(value)
+        return (" WHERE " + " AND ".join(clauses) if clauses else ""), args
