@@ -1,0 +1,285 @@
+"""The stockpile asset of the integration test: particles in, storage model, outflow.
+
+Source: paper section "Integration test": "Each bin on the incoming conveyor
+contain material with a specific mass, ore grade and a tracking-id. [...]
+The storage asset responds by emitting particles with the corresponding
+total mass and mineral concentration. [...] The storage asset receives a
+discharge rate control signal [...] The particles that reach the outlet are
+eliminated and a macro-tracking message is passed so that the [...]
+simulator receive information of the material that enters the outgoing
+conveyer. That information include tracking-ids, mass and ore grade."
+
+The asset owns its own ``ParticleStore`` and a storage model picked by name
+(``cosim.storage.make_storage``: ``fifo``, ``mixing`` now; ``rom``/``dem``
+once registered). Every particle carries the inbound bin's tracking id as the
+uint64 extrinsic attribute ``tracking_id`` and its source index as ``source``.
+
+Display geometry: FIFO and mixing have no geometry. For them the particles
+get *schematic* positions in a 2-D pile cross-section (a half disc of radius
+``pile_radius_m`` above the outlet at the origin, x horizontal, y up): a
+particle whose rank in the model's order of leaving is a fraction ``s`` of
+the held particles sits at radius ``R sqrt(s)`` (area-uniform), at an angle
+fixed by its id, and moves radially towards the outlet at the rate the
+feeder drains the pile (``d(R sqrt(s))/dt`` with ``ds/dt = -rate / held
+mass``). These positions only illustrate the order of leaving; they are not
+a flow simulation. A storage model with real geometry (attribute
+``has_geometry = True``, the ROM and DEM) keeps its own positions and
+velocities, which the asset then reports as they are.
+
+Parameters (``StockpileAsset``)
+-------------------------------
+model : str
+    Storage model name, default ``"fifo"``.
+seed : int
+    Seed of the asset's generator (mixing order, display angles), default 0.
+particle_mass_kg : float
+    Target pseudo-particle mass [kg], default 100 (paper: ~100 kg each);
+    a bin of mass m becomes ceil(m / particle_mass_kg) equal particles.
+feed_size_m : float
+    Characteristic size x_c [m] of the Rosin-Rammler distribution given to
+    the crushed feed's particles, default 0.05.
+pile_radius_m : float
+    Radius [m] of the schematic display pile, default 10.
+history_rows : int
+    How many per-step totals rows ``history`` keeps, default 100000.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from cosim.errors import ValidationError, check_finite_range
+from cosim.particles import ParticleStore
+from cosim.sizes import d_passing, rosin_rammler
+from cosim.storage import check_discharge_rate, make_storage
+
+STOCKPILE_OWNER = 1
+"""Owner index of the stockpile in its own particle store."""
+
+
+class StockpileAsset:
+    """Stockpile: inbound bins become particles; the storage model decides
+    which particles the feeder takes; outflow is aggregated per tracking id.
+
+    Attributes
+    ----------
+    time : float
+        Simulation time [s].
+    discharge_rate : float
+        Feeder rate [kg/s] used by the next ``step``.
+    particles : ParticleStore
+        The particles held (only the stockpile's: leaving ones are removed).
+    storage : StorageModel
+        The storage model (``fifo``, ``mixing``, ``rom``, ``dem``, ...).
+    """
+
+    def __init__(self, model: str = "fifo", *, seed: int = 0, particle_mass_kg: float = 100.0,
+                 feed_size_m: float = 0.05, pile_radius_m: float = 10.0,
+                 history_rows: int = 100_000, storage_options: dict | None = None):
+        self.particle_mass_kg = float(check_finite_range(
+            "particle_mass_kg", particle_mass_kg, 0.0, low_open=True, unit="kg"))
+        self.pile_radius_m = float(check_finite_range(
+            "pile_radius_m", pile_radius_m, 0.0, low_open=True, unit="m"))
+        self.model_name = model
+        self.rng = np.random.default_rng(seed)
+        options = dict(storage_options or {})
+        if model == "mixing":
+            options.setdefault("rng", self.rng)
+        self.storage = make_storage(model, **options)
+        self.particles = ParticleStore(capacity=4096, first_id=1)
+        self.particles.add_attribute("tracking_id", np.uint64, 0)
+        self.particles.add_attribute("source", np.int64, -1)
+        self.storage.bind(self.particles, STOCKPILE_OWNER)
+        self.feed_f = rosin_rammler(feed_size_m)
+        self.time = 0.0
+        self.discharge_rate = 0.0
+        self.mass_in_kg = 0.0
+        self.mass_out_kg = 0.0
+        self._history: deque[dict] = deque(maxlen=int(history_rows))
+
+    # --------------------------------------------------------------- inflow
+    def receive_bin(self, tracking_id: int, mass_kg: float, grade: float, hardness: float,
+                    source: int = -1) -> np.ndarray:
+        """Emit the particles of one inbound bin at the current time; return their ids.
+
+        The bin is validated whole before anything is added (bad mass,
+        grade or hardness raise ``ValidationError`` naming the field).
+        """
+        mass_kg = float(check_finite_range("mass", mass_kg, 0.0, low_open=True, unit="kg"))
+        check_finite_range("grade", grade, 0.0, 1.0)
+        check_finite_range("hardness", hardness, 0.0, low_open=True)
+        if int(tracking_id) < 0 or int(tracking_id) >= 2**64:
+            raise ValidationError("tracking_id", "an unsigned 64-bit integer", f"got {tracking_id}")
+        count = max(int(np.ceil(mass_kg / self.particle_mass_kg - 1e-9)), 1)
+        masses = np.full(count, mass_kg / count)
+        masses[-1] = mass_kg - masses[:-1].sum()  # the bin's mass exactly
+        ids = self.particles.add(
+            mass=masses, f=self.feed_f, grade=grade, hardness=hardness,
+            owner=STOCKPILE_OWNER, time=self.time,
+            tracking_id=np.uint64(tracking_id), source=int(source))
+        self.storage.receive(ids, self.time)
+        self.mass_in_kg += mass_kg
+        return ids
+
+    # ----------------------------------------------------------------- step
+    def set_discharge_rate(self, rate_kg_s: float) -> None:
+        """Feeder setpoint [kg/s] in [0, 2000]."""
+        self.discharge_rate = check_discharge_rate(rate_kg_s)
+
+    def step(self, dt: float) -> dict:
+        """Advance ``dt`` [s]; remove the particles that reach the outlet.
+
+        Returns the outflow aggregated per tracking id: ``tracking_ids``
+        (uint64), ``masses`` [kg], ``grades`` (mass-weighted), ``sources``
+        and ``particle_ids`` of the removed particles.
+        """
+        dt = float(check_finite_range("dt", dt, 0.0, unit="s"))
+        leaving = self.storage.step(self.time, dt, self.discharge_rate)
+        self.time += dt
+        outflow = self._remove(leaving)
+        self._history.append(self.totals())
+        return outflow
+
+    def _remove(self, ids: np.ndarray) -> dict:
+        store = self.particles
+        slots = store.slots(ids)
+        tids = store.attribute("tracking_id")[slots]
+        mass = store.mass[slots]
+        grade = store.grade[slots]
+        source = store.attribute("source")[slots]
+        unique, first, inverse = np.unique(tids, return_index=True, return_inverse=True)
+        out_mass = np.bincount(inverse, weights=mass, minlength=unique.size)
+        out_grade = np.bincount(inverse, weights=mass * grade, minlength=unique.size)
+        out_grade = np.divide(out_grade, out_mass, out=np.zeros_like(out_mass), where=out_mass > 0)
+        store.remove_slots(slots)
+        self.mass_out_kg += float(mass.sum())
+        return {"tracking_ids": unique.astype(np.uint64), "masses": out_mass,
+                "grades": np.clip(out_grade, 0.0, 1.0), "sources": source[first],
+                "particle_ids": np.asarray(ids, dtype=np.uint64)}
+
+    # ------------------------------------------------------------- sensors
+    def held_by_tracking_id(self) -> dict[int, float]:
+        """Mass [kg] held per tracking id."""
+        tids = self.particles.attribute("tracking_id")
+        unique, inverse = np.unique(tids, return_inverse=True)
+        mass = np.bincount(inverse, weights=self.particles.mass, minlength=unique.size)
+        return {int(t): float(m) for t, m in zip(unique, mass)}
+
+    def totals(self) -> dict:
+        """Virtual sensors over the whole pile (mass-weighted averages)."""
+        store = self.particles
+        held = float(store.mass.sum())
+        if held > 0:
+            w = store.mass / held
+            grade, hardness = float(w @ store.grade), float(w @ store.hardness)
+            d80 = float(d_passing(w @ store.f, 0.8))
+        else:
+            grade = hardness = d80 = float("nan")
+        return {"time_s": self.time, "held_mass_kg": held, "grade": grade,
+                "hardness": hardness, "d80_m": d80, "particle_count": len(store),
+                "discharge_rate_kg_s": self.discharge_rate}
+
+    def history(self, since: float = -np.inf) -> list[dict]:
+        """Totals rows recorded after each step with ``time_s > since``."""
+        return [row for row in self._history if row["time_s"] > since]
+
+    # ------------------------------------------------------------- display
+    def _update_display(self) -> None:
+        """Schematic positions and velocities for models without geometry."""
+        if getattr(self.storage, "has_geometry", False) or len(self.particles) == 0:
+            return
+        store = self.particles
+        order = self.storage.held_ids()
+        slots = store.slots(order)
+        n = order.size
+        s = (np.arange(n) + 0.5) / n
+        # angle fixed per particle: golden-ratio hash of its id
+        theta = np.pi * np.mod(order.astype(np.float64) * 0.6180339887498949, 1.0)
+        radius = self.pile_radius_m * np.sqrt(s)
+        held = max(float(store.mass[slots].sum()), 1e-300)
+        speed = -self.pile_radius_m * (self.discharge_rate / held) / (2.0 * np.sqrt(s))
+        store.position[slots, 0] = radius * np.cos(theta)
+        store.position[slots, 1] = radius * np.sin(theta)
+        store.position[slots, 2] = 0.0
+        store.velocity[slots, 0] = speed * np.cos(theta)
+        store.velocity[slots, 1] = speed * np.sin(theta)
+        store.velocity[slots, 2] = 0.0
+
+    def _extent(self) -> tuple[float, float, float, float]:
+        if getattr(self.storage, "has_geometry", False) and len(self.particles):
+            pos = self.particles.position
+            return (float(pos[:, 0].min()), float(pos[:, 0].max()) + 1e-9,
+                    float(pos[:, 1].min()), float(pos[:, 1].max()) + 1e-9)
+        r = self.pile_radius_m
+        return -r, r, 0.0, r
+
+    def fields(self, nx: int = 32, ny: int = 16) -> dict:
+        """Spatial fields on an ny x nx grid over the pile (NaN where empty).
+
+        ``mass`` [kg per cell]; ``grade``, ``hardness``, ``residence_time``
+        [s], ``vx``, ``vy`` [m/s] mass-weighted per cell.
+        """
+        for name, value in (("nx", nx), ("ny", ny)):
+            if not 1 <= int(value) <= 1024:
+                raise ValidationError(name, "an integer in [1, 1024]", f"got {value!r}")
+        self._update_display()
+        x0, x1, y0, y1 = self._extent()
+        x_edges = np.linspace(x0, x1, int(nx) + 1)
+        y_edges = np.linspace(y0, y1, int(ny) + 1)
+        store = self.particles
+        x, y, m = store.position[:, 0], store.position[:, 1], store.mass
+
+        def grid(weights):
+            return np.histogram2d(y, x, bins=(y_edges, x_edges), weights=weights)[0]
+
+        mass = grid(m)
+        empty = mass <= 0
+        out = {"x_edges": x_edges, "y_edges": y_edges,
+               "mass": np.where(empty, np.nan, mass)}
+        residence = self.time - store.time_in_owner
+        for name, values in (("grade", store.grade), ("hardness", store.hardness),
+                             ("residence_time", residence), ("vx", store.velocity[:, 0]),
+                             ("vy", store.velocity[:, 1])):
+            total = grid(m * values)
+            out[name] = np.where(empty, np.nan, total / np.where(empty, 1.0, mass))
+        return out
+
+    def particle_table(self, limit: int = 1000, offset: int = 0) -> dict:
+        """Rows ``offset .. offset+limit`` of the held particles, as arrays.
+
+        ``origin`` is the source index of the bin the particle came from.
+        """
+        for name, value, low in (("limit", limit, 0), ("offset", offset, 0)):
+            if int(value) < low:
+                raise ValidationError(name, f"an integer >= {low}", f"got {value!r}")
+        self._update_display()
+        store = self.particles
+        rows = slice(int(offset), int(offset) + int(limit))
+        return {"id": store.id[rows].copy(),
+                "tracking_id": store.attribute("tracking_id")[rows].copy(),
+                "x": store.position[rows, 0].copy(), "y": store.position[rows, 1].copy(),
+                "mass": store.mass[rows].copy(),
+                "grade": store.grade[rows].copy(), "hardness": store.hardness[rows].copy(),
+                "residence_time": self.time - store.time_in_owner[rows],
+                "origin": store.attribute("source")[rows].copy(),
+                "total": len(store)}
+
+    def predicted_feed(self, horizon_s: float) -> dict:
+        """Feed predicted to leave within ``horizon_s`` at the current setpoint
+        (paper section "Predicting the properties of the mill feed")."""
+        horizon_s = float(check_finite_range("horizon_s", horizon_s, 0.0, unit="s"))
+        ids, share = self.storage.predict(horizon_s, self.discharge_rate)
+        store = self.particles
+        slots = store.slots(ids)
+        mass = float(share.sum())
+        if mass > 0:
+            w = share / mass
+            grade, hardness = float(w @ store.grade[slots]), float(w @ store.hardness[slots])
+            d80 = float(d_passing(w @ store.f[slots], 0.8))
+        else:
+            grade = hardness = d80 = float("nan")
+        tids = np.unique(store.attribute("tracking_id")[slots])
+        return {"horizon_s": horizon_s, "mass_kg": mass, "grade": grade,
+                "hardness": hardness, "d80_m": d80, "tracking_ids": tids}
