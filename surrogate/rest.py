@@ -1,0 +1,518 @@
+"""Read-only REST interface of a storage asset (the stockpile's virtual sensors).
+
+Source: paper section "Integration test": the monitoring service "receives
+virtual sensor information from the stockpile asset using a REST interface":
+the total mass in the storage, the average grade, the spatial distributions of
+these quantities and the predicted velocity field in the bulk of the pile.
+Every average is the paper's eq. (observation), mass-weighted over the
+particles of the storage (``cosim.sensors.observe``), without time window.
+
+Two parts:
+
+``StorageView(particles, storage, clock, discharge_rate)``
+    serves the *stockpile protocol* for any ``cosim.storage.StorageModel``
+    bound to a ``ParticleStore`` (FIFO, mixing, ROM, DEM): ``time``,
+    ``discharge_rate``, ``totals()``, ``history(since)``, ``fields(nx, ny)``,
+    ``particle_table(limit, offset)``, ``predicted_feed(horizon_s)``. The
+    owner of the storage calls ``record()`` after each step to extend the
+    time series.
+``create_app(asset)`` / ``start_rest(asset, host, port)``
+    the aiohttp application serving any object with that protocol
+    (``StorageView`` or the stockpile asset), read-only, on 127.0.0.1 by
+    default, with its OpenAPI 3.0 document at ``/openapi.json``.
+    ``serve_in_thread`` runs it beside a synchronous simulator.
+
+Units: SI (kg, m, s, kg/s); grade and hardness dimensionless. The pile is
+seen in the x-y plane of the particle positions (the 2D scene: x horizontal,
+y vertical). Bad query parameters get HTTP 400 with
+``{"error": "FIELD: must be ...", "field": FIELD}``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import threading
+from collections import deque
+
+import numpy as np
+from aiohttp import web
+
+from cosim.errors import ValidationError
+from cosim.sensors import observe
+from cosim.sizes import d_passing
+
+TOTALS_KEYS = ("time_s", "held_mass_kg", "grade", "hardness", "d80_m", "particle_count",
+               "discharge_rate_kg_s")
+"""Fields of a totals row (``/totals`` and each ``/history`` row)."""
+
+FIELD_NAMES = ("mass", "grade", "hardness", "residence_time", "velocity")
+"""Spatial fields ``/fields`` can return (``velocity`` gives ``vx`` and ``vy``)."""
+
+MAX_GRID = 200
+"""Largest grid side (cells) of ``/fields``."""
+
+MAX_PARTICLES_PAGE = 50_000
+"""Largest page of ``/particles``."""
+
+MAX_HORIZON_S = 3600.0
+"""Longest feed prediction [s]."""
+
+FEED_PROFILE_INTERVALS = 30
+"""The predicted feed is also given per interval: horizon / 30 each."""
+
+
+class StorageView:
+    """The stockpile protocol over a storage model bound to a particle store.
+
+    Parameters
+    ----------
+    particles : cosim.particles.ParticleStore
+        The scenario's store.
+    storage : cosim.storage.StorageModel
+        A bound storage model; its ``owner`` selects the particles held.
+    clock : callable () -> float
+        Current simulation time [s].
+    discharge_rate : callable () -> float
+        Current feeder rate [kg/s] (used for ``totals`` and the prediction).
+    history_limit : int
+        Rows of the time series kept (oldest dropped first), default 100,000.
+    """
+
+    def __init__(self, particles, storage, clock, discharge_rate, history_limit: int = 100_000):
+        self.particles = particles
+        self.storage = storage
+        self._clock = clock
+        self._rate = discharge_rate
+        self._history: deque = deque(maxlen=int(history_limit))
+
+    @property
+    def time(self) -> float:
+        """Simulation time [s]."""
+        return float(self._clock())
+
+    @property
+    def discharge_rate(self) -> float:
+        """Feeder rate [kg/s]."""
+        return float(self._rate())
+
+    def _held_slots(self) -> np.ndarray:
+        return self.particles.owned_by(self.storage.owner)
+
+    def totals(self) -> dict:
+        """Held mass [kg], mass-weighted grade and hardness, D80 [m], count,
+        discharge rate [kg/s] and time [s]; NaN averages when empty."""
+        slots = self._held_slots()
+        store = self.particles
+        f = observe(store, "f", slots=slots)
+        return {
+            "time_s": self.time,
+            "held_mass_kg": float(store.mass[slots].sum()),
+            "grade": observe(store, "grade", slots=slots),
+            "hardness": observe(store, "hardness", slots=slots),
+            "d80_m": float("nan") if np.isnan(f).any() else float(d_passing(f, 0.8)),
+            "particle_count": int(slots.size),
+            "discharge_rate_kg_s": self.discharge_rate,
+        }
+
+    def record(self) -> dict:
+        """Append the current totals to the time series (call after each step)."""
+        row = self.totals()
+        if self._history and row["time_s"] < self._history[-1]["time_s"]:
+            self._history.clear()  # the clock went back: a new run
+        self._history.append(row)
+        return row
+
+    def history(self, since: float = -math.inf) -> list[dict]:
+        """Totals rows recorded at times > ``since`` [s], oldest first."""
+        return [row for row in self._history if row["time_s"] > since]
+
+    def fields(self, nx: int, ny: int) -> dict:
+        """Mass [kg] per cell and mass-weighted grade, hardness, residence
+        time [s] and velocity vx, vy [m/s] on an nx-by-ny grid spanning the
+        held particles (arrays ny x nx, row 0 at the lowest y; NaN where a
+        cell is empty)."""
+        slots = self._held_slots()
+        store = self.particles
+        position = store.position[slots]
+        x, y = position[:, 0], position[:, 1]
+        mass = store.mass[slots]
+        x_edges = _edges(x, nx)
+        y_edges = _edges(y, ny)
+        quantities = {
+            "grade": store.grade[slots],
+            "hardness": store.hardness[slots],
+            "residence_time": self.time - store.time_in_owner[slots],
+            "vx": store.velocity[slots, 0],
+            "vy": store.velocity[slots, 1],
+        }
+
+        def binned(weights):
+            counts, _, _ = np.histogram2d(x, y, bins=(x_edges, y_edges), weights=weights)
+            return counts.T
+
+        cell_mass = binned(mass)
+        out = {"x_edges": x_edges, "y_edges": y_edges, "mass": cell_mass}
+        with np.errstate(invalid="ignore", divide="ignore"):
+            for name, values in quantities.items():
+                out[name] = np.where(cell_mass > 0, binned(mass * values) / cell_mass, np.nan)
+        return out
+
+    def particle_table(self, limit: int, offset: int) -> dict:
+        """Page of held particles ordered by id: id, tracking_id (the
+        ``tracking_id`` attribute, else the id), x, y [m], grade, hardness,
+        residence_time [s], origin (x of the position of origin [m]), and
+        ``total`` (held count)."""
+        store = self.particles
+        slots = self._held_slots()
+        slots = slots[np.argsort(store.id[slots], kind="stable")][offset: offset + limit]
+        ids = store.id[slots]
+        tracking = (store.attribute("tracking_id")[slots]
+                    if "tracking_id" in store.attribute_names else ids)
+        return {
+            "total": int(np.count_nonzero(store.owner == self.storage.owner)),
+            "id": ids,
+            "tracking_id": tracking,
+            "x": store.position[slots, 0],
+            "y": store.position[slots, 1],
+            "grade": store.grade[slots],
+            "hardness": store.hardness[slots],
+            "residence_time": self.time - store.time_in_owner[slots],
+            "origin": store.origin[slots, 0],
+        }
+
+    def predicted_feed(self, horizon_s: float) -> dict:
+        """The feed the storage model predicts for the next ``horizon_s`` [s]
+        at the current rate (paper section "Predicting the properties of the
+        mill feed"): mass [kg], mass-weighted grade, hardness and D80 [m],
+        the tracking ids expected, and a ``profile`` of mass and grade per
+        interval of horizon / 30."""
+        rate = self.discharge_rate
+        ids, share = self.storage.predict(horizon_s, rate)
+        summary = self._feed_summary(ids, share)
+        summary["horizon_s"] = float(horizon_s)
+        edges = np.linspace(0.0, horizon_s, FEED_PROFILE_INTERVALS + 1)
+        cum_mass = np.zeros(edges.size)
+        cum_grade_mass = np.zeros(edges.size)
+        for k, h in enumerate(edges[1:], start=1):
+            ids_k, share_k = self.storage.predict(float(h), rate)
+            cum_mass[k] = share_k.sum()
+            cum_grade_mass[k] = share_k @ self.particles.grade[self.particles.slots(ids_k)]
+        mass = np.diff(cum_mass)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            grade = np.where(mass > 0, np.diff(cum_grade_mass) / mass, np.nan)
+        summary["profile"] = {"t_s": edges[1:], "mass_kg": mass, "grade": grade}
+        return summary
+
+    def _feed_summary(self, ids, share) -> dict:
+        store = self.particles
+        slots = store.slots(ids)
+        mass = float(share.sum())
+        if mass > 0:
+            grade = float(share @ store.grade[slots]) / mass
+            hardness = float(share @ store.hardness[slots]) / mass
+            d80 = float(d_passing(share @ store.f[slots] / mass, 0.8))
+        else:
+            grade = hardness = d80 = float("nan")
+        tracking = (store.attribute("tracking_id")[slots]
+                    if "tracking_id" in store.attribute_names else ids)
+        return {"mass_kg": mass, "grade": grade, "hardness": hardness, "d80_m": d80,
+                "particle_count": int(ids.size), "tracking_ids": np.unique(tracking)}
+
+
+def _edges(values: np.ndarray, cells: int) -> np.ndarray:
+    """Cell edges spanning ``values``; 1 m wide span around a degenerate one."""
+    if values.size == 0:
+        low, high = 0.0, 1.0
+    else:
+        low, high = float(values.min()), float(values.max())
+    if not high - low > 1e-9:
+        low, high = low - 0.5, high + 0.5
+    # widen a hair so the largest value falls inside the last cell
+    return np.linspace(low, high + 1e-9 * max(1.0, abs(high)), cells + 1)
+
+
+# ---------------------------------------------------------------- JSON helpers
+def to_json(value):
+    """Plain JSON-able Python value: numpy arrays to lists, NaN/inf to null."""
+    if isinstance(value, dict):
+        return {str(k): to_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_json(v) for v in value]
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind == "f":
+            out = value.astype(object)
+            out[~np.isfinite(value)] = None
+            return out.tolist()
+        return value.tolist()
+    if isinstance(value, (np.floating, float)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
+
+
+def _query_number(request, field, default, low, high, *, integer=False, low_open=False):
+    """A query parameter as a number in [low, high] (or (low, high]), else a
+    ValidationError naming ``field``."""
+    raw = request.query.get(field)
+    unit = "an integer" if integer else "a finite number"
+    allowed = f"{unit} {'>' if low_open else '>='} {low:g} and <= {high:g}"
+    if raw is None:
+        return default
+    try:
+        value = int(raw) if integer else float(raw)
+    except ValueError:
+        raise ValidationError(field, allowed, f"got {raw!r}") from None
+    if not math.isfinite(value) or value > high or value < low or (low_open and value == low):
+        raise ValidationError(field, allowed, f"got {raw!r}")
+    return value
+
+
+# ------------------------------------------------------------------ the server
+def create_app(asset, lock=None) -> web.Application:
+    """aiohttp application serving ``asset`` read-only.
+
+    ``asset`` has the stockpile protocol (see ``StorageView``). ``lock`` (a
+    ``threading.Lock``) is held while reading the asset when the simulation
+    runs in another thread (``serve_in_thread``).
+    """
+    app = web.Application(middlewares=[_errors_as_json])
+
+    def read(method, *args):
+        if lock is None:
+            return method(*args)
+        with lock:
+            return method(*args)
+
+    async def health(request):
+        return web.json_response({"status": "ok", "time_s": to_json(read(lambda: asset.time))})
+
+    async def totals(request):
+        return web.json_response(to_json(read(asset.totals)))
+
+    async def history(request):
+        since = _query_number(request, "since", -math.inf, -1e12, 1e12)
+        rows = read(asset.history, since)
+        return web.json_response({"since": to_json(since), "rows": to_json(rows)})
+
+    async def fields(request):
+        nx = _query_number(request, "nx", 40, 1, MAX_GRID, integer=True)
+        ny = _query_number(request, "ny", 20, 1, MAX_GRID, integer=True)
+        wanted = _field_list(request.query.get("field"))
+        grid = read(asset.fields, nx, ny)
+        out = {"nx": nx, "ny": ny, "time_s": read(lambda: asset.time),
+               "x_edges": grid["x_edges"], "y_edges": grid["y_edges"]}
+        for name in wanted:
+            for key in (("vx", "vy") if name == "velocity" else (name,)):
+                out[key] = grid[key]
+        return web.json_response(to_json(out))
+
+    async def particles(request):
+        limit = _query_number(request, "limit", 5000, 1, MAX_PARTICLES_PAGE, integer=True)
+        offset = _query_number(request, "offset", 0, 0, 2**31 - 1, integer=True)
+        table = read(asset.particle_table, limit, offset)
+        return web.json_response(to_json({"limit": limit, "offset": offset,
+                                          "time_s": read(lambda: asset.time), **table}))
+
+    async def feed(request):
+        horizon = _query_number(request, "horizon", 30.0, 0.0, MAX_HORIZON_S, low_open=True)
+        return web.json_response(to_json({"horizon_s": horizon,
+                                          **read(asset.predicted_feed, horizon)}))
+
+    async def openapi(request):
+        return web.json_response(OPENAPI)
+
+    for path, handler in (("/health", health), ("/totals", totals), ("/history", history),
+                          ("/fields", fields), ("/particles", particles), ("/feed", feed),
+                          ("/openapi.json", openapi)):
+        app.router.add_get(path, handler)
+    return app
+
+
+def _field_list(raw: str | None) -> list[str]:
+    if raw is None or raw == "":
+        return list(FIELD_NAMES)
+    names = [name.strip() for name in raw.split(",")]
+    unknown = [name for name in names if name not in FIELD_NAMES]
+    if unknown:
+        raise ValidationError("field", f"a comma-separated list of {list(FIELD_NAMES)}",
+                              f"got {unknown[0]!r}")
+    return list(dict.fromkeys(names))
+
+
+@web.middleware
+async def _errors_as_json(request, handler):
+    """Errors as JSON: 400 naming the parameter, 404/405 with a message."""
+    try:
+        return await handler(request)
+    except ValidationError as exc:
+        return web.json_response({"error": str(exc), "field": exc.field}, status=400)
+    except web.HTTPException as exc:
+        if exc.status < 400:
+            raise
+        return web.json_response({"error": exc.reason, "field": None}, status=exc.status)
+
+
+async def start_rest(asset, host: str = "127.0.0.1", port: int = 0, lock=None):
+    """Serve ``asset`` on ``host:port`` (0: a free port) in the running loop.
+
+    Returns ``(runner, actual_port)``; stop with ``await runner.cleanup()``.
+    """
+    runner = web.AppRunner(create_app(asset, lock), access_log=None)
+    await runner.setup()
+    site = web.TCPSite(runner, host, port)
+    await site.start()
+    actual_port = site._server.sockets[0].getsockname()[1]
+    return runner, actual_port
+
+
+class RestThread:
+    """The REST server in a background thread, beside a synchronous simulator.
+
+    The simulator holds ``lock`` while it steps; the server holds it while it
+    reads. ``port`` is the bound port; ``stop()`` shuts the server down.
+    """
+
+    def __init__(self, asset, host: str = "127.0.0.1", port: int = 0, lock=None):
+        self.lock = lock if lock is not None else threading.Lock()
+        self._loop = asyncio.new_event_loop()
+        started = threading.Event()
+        failure: list[BaseException] = []
+
+        def run():
+            asyncio.set_event_loop(self._loop)
+            try:
+                self._runner, self.port = self._loop.run_until_complete(
+                    start_rest(asset, host, port, self.lock))
+            except BaseException as exc:  # reported to the caller below
+                failure.append(exc)
+                started.set()
+                return
+            started.set()
+            self._loop.run_forever()
+            self._loop.run_until_complete(self._runner.cleanup())
+            self._loop.close()
+
+        self._thread = threading.Thread(target=run, name="rest-server", daemon=True)
+        self._thread.start()
+        started.wait()
+        if failure:
+            raise failure[0]
+
+    def stop(self) -> None:
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(timeout=10)
+
+
+def serve_in_thread(asset, host: str = "127.0.0.1", port: int = 0, lock=None) -> RestThread:
+    """Start the REST server for ``asset`` in a background thread."""
+    return RestThread(asset, host, port, lock)
+
+
+# ------------------------------------------------------------ OpenAPI document
+_NUM = {"type": "number", "nullable": True}
+_NUM_LIST = {"type": "array", "items": _NUM}
+_GRID = {"type": "array", "items": _NUM_LIST}
+_INT_LIST = {"type": "array", "items": {"type": "integer", "minimum": 0}}
+_TOTALS = {
+    "type": "object",
+    "required": list(TOTALS_KEYS),
+    "properties": {
+        "time_s": {"type": "number", "description": "simulation time [s]"},
+        "held_mass_kg": {"type": "number", "minimum": 0, "description": "mass held [kg]"},
+        "grade": {**_NUM, "description": "mass-weighted grade [-]; null when empty"},
+        "hardness": {**_NUM, "description": "mass-weighted relative hardness [-]"},
+        "d80_m": {**_NUM, "description": "80 % passing size [m]"},
+        "particle_count": {"type": "integer", "minimum": 0},
+        "discharge_rate_kg_s": {"type": "number", "minimum": 0,
+                                "description": "feeder rate [kg/s]"},
+    },
+}
+_ERROR = {
+    "description": "bad query parameter",
+    "content": {"application/json": {"schema": {
+        "type": "object", "required": ["error", "field"],
+        "properties": {"error": {"type": "string"},
+                       "field": {"type": "string", "nullable": True}}}}},
+}
+
+
+def _param(name, schema, description):
+    return {"name": name, "in": "query", "required": False, "schema": schema,
+            "description": description}
+
+
+def _get(summary, schema, parameters=()):
+    responses = {"200": {"description": "OK",
+                         "content": {"application/json": {"schema": schema}}}}
+    if parameters:
+        responses["400"] = _ERROR
+    return {"get": {"summary": summary, "parameters": list(parameters),
+                    "responses": responses}}
+
+
+OPENAPI = {
+    "openapi": "3.0.3",
+    "info": {"title": "MineTwin stockpile virtual sensors", "version": "1.0.0",
+             "description": "Read-only REST interface of the stockpile asset (paper section "
+                            "'Integration test'). SI units."},
+    "paths": {
+        "/health": _get("liveness and simulation time", {
+            "type": "object", "required": ["status", "time_s"],
+            "properties": {"status": {"type": "string", "enum": ["ok"]},
+                           "time_s": {"type": "number"}}}),
+        "/totals": _get("current totals of the stockpile", _TOTALS),
+        "/history": _get("totals time series since a time", {
+            "type": "object", "required": ["since", "rows"],
+            "properties": {"since": _NUM, "rows": {"type": "array", "items": _TOTALS}}},
+            [_param("since", {"type": "number", "minimum": -1e12, "maximum": 1e12},
+                    "rows recorded strictly after this time [s]; default all")]),
+        "/fields": _get("spatial fields on a grid over the pile (arrays ny x nx)", {
+            "type": "object", "required": ["nx", "ny", "time_s", "x_edges", "y_edges"],
+            "properties": {"nx": {"type": "integer"}, "ny": {"type": "integer"},
+                           "time_s": {"type": "number"},
+                           "x_edges": _NUM_LIST, "y_edges": _NUM_LIST,
+                           "mass": _GRID, "grade": _GRID, "hardness": _GRID,
+                           "residence_time": _GRID, "vx": _GRID, "vy": _GRID}},
+            [_param("nx", {"type": "integer", "minimum": 1, "maximum": MAX_GRID},
+                    "cells along x (default 40)"),
+             _param("ny", {"type": "integer", "minimum": 1, "maximum": MAX_GRID},
+                    "cells along y (default 20)"),
+             _param("field", {"type": "string"},
+                    f"comma-separated subset of {', '.join(FIELD_NAMES)} (default all)")]),
+        "/particles": _get("a page of the particles held, ordered by id", {
+            "type": "object",
+            "required": ["limit", "offset", "total", "id", "tracking_id", "x", "y", "grade",
+                         "hardness", "residence_time", "origin"],
+            "properties": {"limit": {"type": "integer"}, "offset": {"type": "integer"},
+                           "time_s": {"type": "number"},
+                           "total": {"type": "integer", "minimum": 0},
+                           "id": _INT_LIST, "tracking_id": _INT_LIST,
+                           "x": _NUM_LIST, "y": _NUM_LIST, "grade": _NUM_LIST,
+                           "hardness": _NUM_LIST, "residence_time": _NUM_LIST,
+                           "origin": _NUM_LIST}},
+            [_param("limit", {"type": "integer", "minimum": 1, "maximum": MAX_PARTICLES_PAGE},
+                    "page size (default 5000)"),
+             _param("offset", {"type": "integer", "minimum": 0, "maximum": 2**31 - 1},
+                    "first row (default 0)")]),
+        "/feed": _get("feed predicted for the next horizon seconds", {
+            "type": "object",
+            "required": ["horizon_s", "mass_kg", "grade", "hardness", "d80_m", "tracking_ids"],
+            "properties": {"horizon_s": {"type": "number"},
+                           "mass_kg": {"type": "number", "minimum": 0},
+                           "grade": _NUM, "hardness": _NUM, "d80_m": _NUM,
+                           "particle_count": {"type": "integer", "minimum": 0},
+                           "tracking_ids": _INT_LIST,
+                           "profile": {"type": "object", "properties": {
+                               "t_s": _NUM_LIST, "mass_kg": _NUM_LIST, "grade": _NUM_LIST}}}},
+            [_param("horizon", {"type": "number", "exclusiveMinimum": True, "minimum": 0,
+                                "maximum": MAX_HORIZON_S},
+                    "prediction horizon [s] (default 30)")]),
+        "/openapi.json": {"get": {"summary": "this document",
+                                  "responses": {"200": {"description": "OpenAPI 3.0 document"}}}},
+    },
+}
+"""OpenAPI 3.0 document of the API (served at ``/openapi.json``)."""
