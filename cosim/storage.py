@@ -188,6 +188,7 @@ class MixingStorage(StorageModel):
 STORAGE_MODELS: dict[str, str] = {
     "fifo": "cosim.storage:FifoStorage",
     "mixing": "cosim.storage:MixingStorage",
+    "rom": "surrogate.rom.storage:RomStorage",
 }
 """Storage models by name, cheapest first; values are ``module:Class``."""
 

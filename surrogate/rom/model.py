@@ -1,0 +1,257 @@
+"""Reduced-order flow model of a stockpile: POD + ridge regression.
+
+Source: Wallin and Servin (2021), "Data-driven model order reduction for
+granular media", the method the paper's sections "Digital twin as a
+distributed particle simulation" and "Integration test" use: from many
+offline DEM runs, a low-dimensional model predicts the velocity field of the
+pile from its mass distribution and the control signals.
+
+Equations (our implementation):
+
+- Mass field M (ny*nx cells, kg) reduced by proper orthogonal decomposition
+  (PCA of the training snapshots): z = Phi_M^T (M - M_mean) / s_M, with
+  Phi_M the first ``n_mass_modes`` left singular vectors and s_M the scale
+  of each coefficient (singular value / sqrt(S)), so z is O(1).
+- Velocity field V (ny*nx*2, m/s) reduced the same way:
+  V ~= V_mean + Phi_V a, ``n_velocity_modes`` modes.
+- Features phi = [1, z, q_out, q_in, q_out z, q_in z] with the discharge rate
+  q_out and inflow rate q_in [kg/s] divided by ``RATE_SCALE``. The products
+  let the flow scale with the feeder rate for each pile shape (a funnel flow
+  field is close to proportional to the discharge rate).
+- Ridge regression a = W phi, W = argmin |A - W Phi|^2 + lambda |W|^2
+  (intercept not penalised), solved in closed form.
+
+Parameters: ``n_mass_modes`` (default 12), ``n_velocity_modes`` (default
+16), ``ridge`` lambda (default 1e-2, dimensionless: features are O(1)).
+
+The model file (``save``/``load``) is one ``.npz`` holding the arrays and a
+JSON header with the format version, the grid, the options and the training
+ranges of every input. ``predict`` warns (``OutOfTrainingRange``) naming the
+input and its range when an input lies outside what the model was trained on:
+discharge rate, inflow rate, held mass, and the mass distribution (relative
+residual of its POD projection above the training maximum).
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from cosim.errors import ValidationError
+from surrogate.rom.container import Container
+from surrogate.rom.grid import Grid
+
+FORMAT_VERSION = 1
+"""Version of the model file layout."""
+
+RATE_SCALE = 1000.0
+"""Rates are divided by this [kg/s] before entering the regression."""
+
+RANGE_MARGIN = 0.05
+"""Relative slack on the training ranges before ``predict`` warns."""
+
+
+class OutOfTrainingRange(UserWarning):
+    """An input to the ROM lies outside the range it was trained on."""
+
+
+def _pod(snapshots: np.ndarray, modes: int):
+    """Mean, orthonormal modes (cells, k) and coefficient scales of ``snapshots`` (S, cells)."""
+    mean = snapshots.mean(axis=0)
+    _, singular, vt = np.linalg.svd(snapshots - mean, full_matrices=False)
+    modes = min(modes, vt.shape[0])
+    scale = singular[:modes] / np.sqrt(snapshots.shape[0])
+    scale = np.where(scale > 0, scale, 1.0)
+    return mean, vt[:modes].T.copy(), scale
+
+
+class RomModel:
+    """POD + ridge regression from (mass field, rates) to velocity field.
+
+    Parameters
+    ----------
+    grid : Grid
+        The Eulerian grid the fields live on.
+    n_mass_modes : int
+        POD modes kept of the mass field (default 12).
+    n_velocity_modes : int
+        POD modes kept of the velocity field (default 16).
+    ridge : float
+        Ridge penalty lambda [-] (default 1e-2).
+    container : Container, optional
+        The stockpile geometry the training data came from (saved with the
+        model; the storage asset needs it).
+    """
+
+    def __init__(self, grid: Grid, n_mass_modes: int = 12, n_velocity_modes: int = 16,
+                 ridge: float = 1e-2, container: Container | None = None):
+        if n_mass_modes < 1 or n_velocity_modes < 1:
+            raise ValidationError("modes", ">= 1", f"got {n_mass_modes}, {n_velocity_modes}")
+        if not ridge >= 0:
+            raise ValidationError("ridge", ">= 0", f"got {ridge!r}")
+        self.grid = grid
+        self.n_mass_modes = int(n_mass_modes)
+        self.n_velocity_modes = int(n_velocity_modes)
+        self.ridge = float(ridge)
+        self.container = container
+        self.arrays: dict[str, np.ndarray] = {}
+        self.ranges: dict[str, list[float]] = {}
+        self.n_samples = 0
+
+    # ------------------------------------------------------------ training
+    def fit(self, mass, discharge_rate, inflow_rate, velocity) -> "RomModel":
+        """Train on S samples.
+
+        Parameters
+        ----------
+        mass : array (S, ny, nx)
+            Mass per cell [kg].
+        discharge_rate, inflow_rate : array (S,)
+            Control signals [kg/s].
+        velocity : array (S, ny, nx, 2)
+            Velocity per cell [m/s].
+        """
+        mass = np.asarray(mass, dtype=np.float64).reshape(len(mass), -1)
+        velocity = np.asarray(velocity, dtype=np.float64).reshape(len(velocity), -1)
+        q_out = np.asarray(discharge_rate, dtype=np.float64)
+        q_in = np.asarray(inflow_rate, dtype=np.float64)
+        samples = mass.shape[0]
+        if mass.shape[1] != self.grid.n_cells or velocity.shape[1] != 2 * self.grid.n_cells:
+            raise ValidationError("mass/velocity", f"fields on the {self.grid.shape} grid",
+                                  f"got {mass.shape[1]} and {velocity.shape[1]} values")
+        if not (velocity.shape[0] == q_out.size == q_in.size == samples) or samples < 2:
+            raise ValidationError("samples", "equal counts >= 2 of mass, rates and velocity",
+                                  f"got {samples}, {q_out.size}, {q_in.size}, {velocity.shape[0]}")
+        m_mean, m_modes, m_scale = _pod(mass, self.n_mass_modes)
+        v_mean, v_modes, v_scale = _pod(velocity, self.n_velocity_modes)
+        self.arrays = {"mass_mean": m_mean, "mass_modes": m_modes, "mass_scale": m_scale,
+                       "velocity_mean": v_mean, "velocity_modes": v_modes,
+                       "velocity_scale": v_scale}
+        z = (mass - m_mean) @ m_modes / m_scale
+        features = self._features(z, q_out, q_in)
+        target = (velocity - v_mean) @ v_modes / v_scale
+        penalty = self.ridge * np.eye(features.shape[1])
+        penalty[0, 0] = 0.0
+        weights = np.linalg.solve(features.T @ features + penalty, features.T @ target)
+        self.arrays["weights"] = weights
+        residual = self._residual(mass, z)
+        totals = mass.sum(axis=1)
+        self.ranges = {
+            "discharge_rate": [float(q_out.min()), float(q_out.max())],
+            "inflow_rate": [float(q_in.min()), float(q_in.max())],
+            "held_mass": [float(totals.min()), float(totals.max())],
+            "mass_distribution_residual": [0.0, float(residual.max())],
+        }
+        self.n_samples = samples
+        return self
+
+    @staticmethod
+    def _features(z, q_out, q_in) -> np.ndarray:
+        z = np.atleast_2d(z)
+        q_out = np.atleast_1d(q_out)[:, None] / RATE_SCALE
+        q_in = np.atleast_1d(q_in)[:, None] / RATE_SCALE
+        ones = np.ones((z.shape[0], 1))
+        return np.hstack((ones, z, q_out, q_in, q_out * z, q_in * z))
+
+    def _residual(self, mass, z) -> np.ndarray:
+        """Relative norm of the part of each mass field the POD modes do not span."""
+        a = self.arrays
+        centred = mass - a["mass_mean"]
+        rebuilt = (z * a["mass_scale"]) @ a["mass_modes"].T
+        norm = np.linalg.norm(mass, axis=1)
+        return np.linalg.norm(centred - rebuilt, axis=1) / np.where(norm > 0, norm, 1.0)
+
+    # ----------------------------------------------------------- inference
+    @property
+    def trained(self) -> bool:
+        return "weights" in self.arrays
+
+    def check_ranges(self, mass, discharge_rate: float, inflow_rate: float,
+                     residual: float | None = None) -> list[str]:
+        """Warn for every input outside the training range; return the warnings."""
+        values = {"discharge_rate": discharge_rate, "inflow_rate": inflow_rate,
+                  "held_mass": float(np.sum(mass))}
+        if residual is not None:
+            values["mass_distribution_residual"] = residual
+        units = {"discharge_rate": "kg/s", "inflow_rate": "kg/s", "held_mass": "kg",
+                 "mass_distribution_residual": ""}
+        messages = []
+        for name, value in values.items():
+            low, high = self.ranges[name]
+            slack = RANGE_MARGIN * max(abs(high), abs(low), 1e-12)
+            if name == "mass_distribution_residual":
+                slack = max(slack, 0.05)
+            if value < low - slack or value > high + slack:
+                unit = f" {units[name]}" if units[name] else ""
+                message = (f"ROM input {name} = {value:.4g}{unit} is outside the "
+                           f"training range [{low:.4g}, {high:.4g}]{unit}; "
+                           "prediction is an extrapolation (consider the DEM fidelity)")
+                warnings.warn(message, OutOfTrainingRange, stacklevel=3)
+                messages.append(message)
+        return messages
+
+    def predict(self, mass, discharge_rate: float, inflow_rate: float = 0.0,
+                check: bool = True) -> np.ndarray:
+        """Velocity field [m/s], ``(ny, nx, 2)``, for one mass field ``(ny, nx)`` and rates."""
+        if not self.trained:
+            raise ValidationError("model", "a trained model (call fit or load first)")
+        a = self.arrays
+        flat = np.asarray(mass, dtype=np.float64).reshape(1, -1)
+        if flat.shape[1] != self.grid.n_cells:
+            raise ValidationError("mass", f"a field on the {self.grid.shape} grid",
+                                  f"got {flat.shape[1]} values")
+        z = (flat - a["mass_mean"]) @ a["mass_modes"] / a["mass_scale"]
+        if check:
+            self.check_ranges(flat, discharge_rate, inflow_rate,
+                              float(self._residual(flat, z)[0]))
+        coefficients = self._features(z, discharge_rate, inflow_rate) @ a["weights"]
+        velocity = a["velocity_mean"] + (coefficients * a["velocity_scale"]) @ a["velocity_modes"].T
+        return velocity.reshape(self.grid.ny, self.grid.nx, 2)
+
+    # ---------------------------------------------------------- persistence
+    def header(self) -> dict:
+        return {"format": "minetwin-rom", "version": FORMAT_VERSION,
+                "grid": self.grid.to_dict(), "n_mass_modes": self.n_mass_modes,
+                "n_velocity_modes": self.n_velocity_modes, "ridge": self.ridge,
+                "rate_scale": RATE_SCALE, "ranges": self.ranges, "n_samples": self.n_samples,
+                "container": None if self.container is None else self.container.to_dict()}
+
+    def save(self, path) -> Path:
+        """Write the model as one ``.npz`` file (arrays + JSON header)."""
+        if not self.trained:
+            raise ValidationError("model", "a trained model (call fit first)")
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "wb") as handle:
+            np.savez_compressed(handle, header=np.array(json.dumps(self.header())), **self.arrays)
+        return path
+
+    @classmethod
+    def load(cls, path) -> "RomModel":
+        """Read a model written by ``save``; a wrong file or version is a ValidationError."""
+        path = Path(path)
+        if not path.is_file():
+            raise ValidationError("model", "an existing model file", f"no file {path}")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                header = json.loads(str(data["header"]))
+                arrays = {name: data[name].copy() for name in data.files if name != "header"}
+        except (OSError, ValueError, KeyError) as exc:
+            raise ValidationError("model", "a MineTwin ROM file (.npz)", f"{path}: {exc}") from None
+        if header.get("format") != "minetwin-rom" or header.get("version") != FORMAT_VERSION:
+            raise ValidationError("model", f"a minetwin-rom file of version {FORMAT_VERSION}",
+                                  f"got {header.get('format')!r} version {header.get('version')!r}")
+        if header.get("rate_scale") != RATE_SCALE:
+            raise ValidationError("model", f"rate_scale {RATE_SCALE}",
+                                  f"got {header.get('rate_scale')!r}")
+        model = cls(Grid.from_dict(header["grid"]), header["n_mass_modes"],
+                    header["n_velocity_modes"], header["ridge"],
+                    None if header.get("container") is None
+                    else Container.from_dict(header["container"]))
+        model.arrays = arrays
+        model.ranges = {k: list(v) for k, v in header["ranges"].items()}
+        model.n_samples = int(header["n_samples"])
+        return model

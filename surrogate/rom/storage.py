@@ -1,0 +1,284 @@
+"""The ROM stockpile: bulk advected by the predicted velocity field.
+
+Source: paper sections "Digital twin as a distributed particle simulation"
+and "Integration test" (Wallin and Servin 2021): a low-dimensional model
+predicts the pile's flow field from its mass distribution and the control
+signals; bulk particles are advected by that field; incoming particles fall
+and spread over the surface; particles reaching the outlet are removed and
+reported with their ids, masses and attributes.
+
+One step of ``dt`` [s] is split into substeps of at most ``max_step`` [s]:
+
+1. every ``update_interval`` [s] (and whenever the discharge rate changes)
+   the mass field M of the held particles is sampled on the model grid and
+   the velocity field is predicted, v = ROM(M, q_out, q_in), with q_in the
+   inflow rate [kg/s] averaged over the last ``inflow_window`` seconds;
+2. particles are advected by v (``surrogate.rom.advect``);
+3. the outlet: the feeder's mass credit grows by q_out * h and whole
+   particles leave, nearest to the outlet first, while their mass fits in
+   the credit (the credit rule of ``cosim.storage.StorageModel``), so the
+   discharged mass follows q_out * t to within one particle. Nearness is the
+   distance to the outlet point with horizontal offsets weighted by
+   ``FUNNEL_ASPECT`` (the column above the opening drains first, material
+   beside it on the floor is the dead zone).
+
+Incoming particles (``receive``) are placed by the surface layer
+(``surrogate.rom.surface``: fall from the inlet, angle-of-repose spreading)
+and join the bulk at once.
+
+The particle store holds positions in the DEM plane: ``position[:, 0]`` = x
+(horizontal), ``position[:, 1]`` = y (up) [m], ``position[:, 2]`` = 0;
+``velocity[:, :2]`` is the interpolated field [m/s]. ``has_geometry`` tells
+the stockpile asset to report these as they are.
+
+Parameters
+----------
+model : RomModel or str or Path, optional
+    The trained model or its file (``minetwin rom train``); may also be
+    given later to ``fit``.
+update_interval : float
+    Seconds between velocity predictions (default 1.0 s).
+max_step : float
+    Largest advection substep [s] (default 0.25 s).
+inflow_window : float
+    Averaging window of the inflow-rate control signal [s] (default 30 s).
+rng : numpy.random.Generator, optional
+    Seeded generator of the surface layer (default seed 0).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+
+from cosim.errors import ValidationError, check_finite_range
+from cosim.storage import StorageModel, check_discharge_rate
+from surrogate.rom.advect import advect, interpolate
+from surrogate.rom.grid import mass_field, mean_field
+from surrogate.rom.model import RomModel
+from surrogate.rom.surface import column_width, deposit, surface_heights
+
+FUNNEL_ASPECT = 3.0
+"""Weight of horizontal offsets in the outlet's order of leaving [-]."""
+
+
+class RomStorage(StorageModel):
+    """Reduced-order stockpile model behind the storage interface (see module docstring)."""
+
+    name = "rom"
+    has_geometry = True
+
+    def __init__(self, model=None, *, update_interval: float = 1.0, max_step: float = 0.25,
+                 inflow_window: float = 30.0, rng: np.random.Generator | None = None):
+        super().__init__()
+        self.update_interval = float(check_finite_range(
+            "update_interval", update_interval, 0.0, low_open=True, unit="s"))
+        self.max_step = float(check_finite_range("max_step", max_step, 0.0, low_open=True,
+                                                 unit="s"))
+        self.inflow_window = float(check_finite_range("inflow_window", inflow_window, 0.0,
+                                                      low_open=True, unit="s"))
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.model: RomModel | None = None
+        self._ids = np.empty(0, dtype=np.uint64)
+        self._mass = np.empty(0)
+        self._pos = np.empty((0, 2))
+        self._receipts: deque[tuple[float, float]] = deque()
+        self._field = None
+        self._field_time = -np.inf
+        self._field_rate = None
+        self.out_of_range: list[str] = []
+        if model is not None:
+            self.fit(model)
+
+    # ------------------------------------------------------------ set-up
+    def fit(self, data=None) -> "RomStorage":
+        """Use a trained ``RomModel`` or load one from a model file path."""
+        if isinstance(data, RomModel):
+            model = data
+        elif isinstance(data, (str, Path)):
+            model = RomModel.load(data)
+        else:
+            raise ValidationError("model", "a RomModel or the path of a ROM model file",
+                                  f"got {type(data).__name__}")
+        if model.container is None or not model.trained:
+            raise ValidationError("model", "a trained ROM with its container geometry")
+        self.model = model
+        self.container = model.container
+        return self
+
+    def _need_model(self) -> RomModel:
+        if self.model is None:
+            raise ValidationError("model", "a trained ROM (RomStorage(model=PATH) or fit(PATH); "
+                                  "train one with `minetwin rom train`)")
+        return self.model
+
+    # ------------------------------------------------------------ inflow
+    def receive(self, ids, t: float) -> None:
+        """Particles arriving at the inlet settle by the surface layer and join the bulk."""
+        self._need_model()
+        ids = np.asarray(ids, dtype=np.uint64)
+        if ids.size == 0:
+            return
+        mass = self.particles.mass[self.particles.slots(ids)].copy()
+        width = column_width(self.container, float(np.median(mass)))
+        heights = surface_heights(self.container, width, self._pos, self._mass)
+        self._append(ids, mass, deposit(self.container, width, heights, mass, self.rng))
+        self._receipts.append((float(t), float(mass.sum())))
+
+    def place(self, ids, position) -> None:
+        """Particles already resting in the pile at ``position`` (N, 2) [m] (initial state)."""
+        self._need_model()
+        ids = np.asarray(ids, dtype=np.uint64)
+        position = np.asarray(position, dtype=np.float64).reshape(-1, 2)
+        if position.shape[0] != ids.size:
+            raise ValidationError("position", f"{ids.size} rows of (x, y)",
+                                  f"got {position.shape[0]}")
+        check_finite_range("position", position, unit="m")
+        self._append(ids, self.particles.mass[self.particles.slots(ids)].copy(), position)
+
+    def _append(self, ids, mass, position) -> None:
+        self._ids = np.concatenate((self._ids, ids))
+        self._mass = np.concatenate((self._mass, mass))
+        self._pos = np.concatenate((self._pos, position))
+        self._write_back()
+
+    def inflow_rate(self, t: float) -> float:
+        """Inflow control signal [kg/s]: mass received in the last ``inflow_window`` s."""
+        while self._receipts and self._receipts[0][0] <= t - self.inflow_window:
+            self._receipts.popleft()
+        return sum(m for _, m in self._receipts) / self.inflow_window
+
+    # ------------------------------------------------------------ flow
+    def velocity_field(self, t: float, discharge_rate: float) -> np.ndarray:
+        """Predicted velocity field [m/s] ``(ny, nx, 2)`` for the current mass distribution."""
+        model = self._need_model()
+        mass = mass_field(model.grid, self._pos, self._mass)
+        # each distinct out-of-range message is warned once and kept for the owner
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            field = model.predict(mass, discharge_rate, self.inflow_rate(t))
+        for warning in caught:
+            message = str(warning.message)
+            if message not in self.out_of_range:
+                self.out_of_range.append(message)
+                warnings.warn_explicit(warning.message, warning.category, warning.filename,
+                                       warning.lineno)
+        return field
+
+    def _advect(self, t: float, h: float, rate: float, position: np.ndarray) -> None:
+        if (self._field is None or t - self._field_time >= self.update_interval - 1e-9
+                or rate != self._field_rate):
+            self._field = self.velocity_field(t, rate)
+            self._field_time, self._field_rate = t, rate
+        grid, c = self.model.grid, self.container
+        substeps = max(1, int(np.ceil(h * np.abs(self._field).max() / (0.5 * min(grid.dx, grid.dy)))))
+        advect(position, self._field, grid.x_min, grid.y_min, grid.dx, grid.dy, h, substeps,
+               c.x_min, c.x_max, c.floor)
+
+    def _nearest_first(self, position, count_hint: int) -> np.ndarray:
+        c = self.container
+        d2 = (FUNNEL_ASPECT * (position[:, 0] - c.outlet_x)) ** 2 + (position[:, 1] - c.floor) ** 2
+        if count_hint < d2.size:
+            part = np.argpartition(d2, count_hint)[: count_hint + 1]
+            return part[np.argsort(d2[part], kind="stable")]
+        return np.argsort(d2, kind="stable")
+
+    def _take(self, position, mass, credit: float) -> tuple[np.ndarray, float]:
+        """Indices of the whole particles the feeder takes with ``credit`` [kg]."""
+        hint = min(int(credit / max(mass.min(), 1e-300)) + 1, mass.size)
+        order = self._nearest_first(position, hint)
+        count = int(np.searchsorted(np.cumsum(mass[order]), credit, side="right"))
+        return order[:count], credit - float(mass[order[:count]].sum())
+
+    def step(self, t: float, dt: float, discharge_rate: float) -> np.ndarray:
+        """Advance ``dt`` [s]; return the ids that leave through the outlet, in order."""
+        rate = check_discharge_rate(discharge_rate)
+        dt = float(check_finite_range("dt", dt, 0.0, unit="s"))
+        self._need_model()
+        substeps = max(1, int(np.ceil(dt / self.max_step)))
+        h = dt / substeps
+        leaving = []
+        for k in range(substeps):
+            if self._ids.size == 0:
+                self._credit_kg = 0.0
+                break
+            self._advect(t + k * h, h, rate, self._pos)
+            self._credit_kg += rate * h
+            taken, self._credit_kg = self._take(self._pos, self._mass, self._credit_kg)
+            if taken.size:
+                leaving.append(self._ids[taken])
+                keep = np.ones(self._ids.size, dtype=bool)
+                keep[taken] = False
+                self._ids, self._mass, self._pos = self._ids[keep], self._mass[keep], self._pos[keep]
+        self._write_back()
+        return np.concatenate(leaving) if leaving else np.empty(0, dtype=np.uint64)
+
+    def _write_back(self) -> None:
+        """Positions and field velocities into the particle store (sensors, monitor)."""
+        slots = self.particles.slots(self._ids)
+        self.particles.position[slots, :2] = self._pos
+        self.particles.position[slots, 2] = 0.0
+        if self._field is not None and self._ids.size:
+            g = self.model.grid
+            self.particles.velocity[slots, :2] = interpolate(self._field, g.x_min, g.y_min,
+                                                             g.dx, g.dy, self._pos)
+
+    # ------------------------------------------------------------ queries
+    def held_ids(self) -> np.ndarray:
+        """Held ids, nearest to the outlet first (the feeder's current order)."""
+        return self._ids[self._nearest_first(self._pos, self._ids.size)]
+
+    def _forget(self, ids) -> None:
+        keep = ~np.isin(self._ids, ids)
+        self._ids, self._mass, self._pos = self._ids[keep], self._mass[keep], self._pos[keep]
+
+    def predict(self, horizon: float, discharge_rate: float):
+        """Feed for the next ``horizon`` s: ``(ids, mass_kg)``.
+
+        The held particles are advected forward with the current field at a
+        constant ``discharge_rate`` and no inflow (the funnel zone drains);
+        the ones the outlet takes, then the nearest remaining ones, are
+        credited until rate * horizon (plus the current credit) is covered.
+        """
+        rate = check_discharge_rate(discharge_rate)
+        horizon = float(check_finite_range("horizon", horizon, 0.0, unit="s"))
+        self._need_model()
+        position, mass, index = self._pos.copy(), self._mass.copy(), np.arange(self._ids.size)
+        credit, taken_all = self._credit_kg, []
+        substeps = max(1, int(np.ceil(horizon / self.max_step)))
+        h = horizon / substeps
+        field = self._field if self._field is not None else self.velocity_field(0.0, rate)
+        grid, c = self.model.grid, self.container
+        for _ in range(substeps):
+            if index.size == 0:
+                break
+            advect(position, field, grid.x_min, grid.y_min, grid.dx, grid.dy, h, 2,
+                   c.x_min, c.x_max, c.floor)
+            credit += rate * h
+            taken, credit = self._take(position, mass, credit)
+            if taken.size:
+                taken_all.append(index[taken])
+                keep = np.ones(index.size, dtype=bool)
+                keep[taken] = False
+                position, mass, index = position[keep], mass[keep], index[keep]
+        order = np.concatenate(taken_all + [index[self._nearest_first(position, index.size)]])
+        masses = self._mass[order]
+        budget = self._credit_kg + rate * horizon
+        share = np.clip(budget - (np.cumsum(masses) - masses), 0.0, masses)
+        keep = share > 0
+        return self._ids[order][keep], share[keep]
+
+    def fields(self) -> dict[str, np.ndarray]:
+        """Fields on the model grid: ``mass`` [kg/cell], ``velocity`` [m/s] (ny, nx, 2)
+        as last predicted, ``grade`` and ``hardness`` (mass-weighted, NaN if empty)."""
+        model = self._need_model()
+        slots = self.particles.slots(self._ids)
+        grid = model.grid
+        velocity = self._field if self._field is not None else np.zeros(grid.shape + (2,))
+        return {"mass": mass_field(grid, self._pos, self._mass), "velocity": velocity,
+                "grade": mean_field(grid, self._pos, self._mass, self.particles.grade[slots]),
+                "hardness": mean_field(grid, self._pos, self._mass,
+                                       self.particles.hardness[slots])}

@@ -1,0 +1,85 @@
+"""Surface layer: where incoming particles come to rest on the pile.
+
+Source: paper section "Integration test": incoming particles "fall, impact,
+and disperse over the pile surface"; Wallin and Servin (2021) keep resolved
+DEM for the free particles. We use a simpler documented scheme instead of a
+second DEM of the free particles (it runs in microseconds per particle and
+needs no contact model): a granular sandpile (avalanche) rule on the pile's
+height profile.
+
+Equations:
+
+- The pile surface is a height profile over columns of width w [m]:
+  h_c = floor + M_c / (rho_A w), with M_c the bulk mass in column c [kg] and
+  rho_A the areal bulk density [kg/m^2] (``Container.areal_density``).
+- A particle of mass m falls vertically from the inlet (column of
+  ``inlet_x`` plus a uniform jitter of +-1 column, the spread of the falling
+  stream) and lands on the surface.
+- It then rolls downhill: while the drop to a neighbouring column exceeds
+  tan(repose_angle) w it moves to the lower neighbour (the steeper side; a
+  tie is broken by a uniform draw). This is the angle-of-repose relaxation
+  of a cellular sandpile.
+- It joins the bulk where it stops: x uniform within the column, y at the
+  middle of the slab it adds, and the column rises by m / (rho_A w).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from surrogate.rom.container import Container
+
+
+def column_width(container: Container, typical_mass: float) -> float:
+    """Column width [m]: about one particle's extent (sqrt of its area in the plane)."""
+    return float(np.sqrt(typical_mass / container.areal_density))
+
+
+def surface_heights(container: Container, width: float, position, mass) -> np.ndarray:
+    """Height h_c [m] of the bulk surface in each column (see module docstring)."""
+    columns = max(int(round((container.x_max - container.x_min) / width)), 1)
+    width = (container.x_max - container.x_min) / columns
+    index = np.clip(((np.asarray(position)[:, 0] - container.x_min) / width).astype(np.int64),
+                    0, columns - 1)
+    column_mass = np.bincount(index, weights=mass, minlength=columns)
+    return container.floor + column_mass / (container.areal_density * width)
+
+
+@numba.njit(cache=True)
+def _deposit(heights, x_min, width, inlet_column, mass, areal_density, max_drop,
+             jitter, tie, offset, out):
+    columns = heights.size
+    for k in range(mass.size):
+        c = min(max(inlet_column + int(np.floor(jitter[k] * 3.0)) - 1, 0), columns - 1)
+        for _ in range(columns):
+            left = heights[c] - heights[c - 1] if c > 0 else -1.0
+            right = heights[c] - heights[c + 1] if c < columns - 1 else -1.0
+            if max(left, right) <= max_drop:
+                break
+            if left > right or (left == right and tie[k] < 0.5):
+                c -= 1
+            else:
+                c += 1
+        rise = mass[k] / (areal_density * width)
+        out[k, 0] = x_min + (c + offset[k]) * width
+        out[k, 1] = heights[c] + 0.5 * rise
+        heights[c] += rise
+
+
+def deposit(container: Container, width: float, heights: np.ndarray, mass,
+            rng: np.random.Generator) -> np.ndarray:
+    """Resting positions (N, 2) [m] of arriving particles of ``mass``, in order.
+
+    ``heights`` (from ``surface_heights`` with the same ``width``) is updated
+    in place as the particles settle.
+    """
+    mass = np.ascontiguousarray(mass, dtype=np.float64)
+    columns = heights.size
+    width = (container.x_max - container.x_min) / columns
+    inlet_column = min(int((container.inlet_x - container.x_min) / width), columns - 1)
+    draws = rng.random((3, mass.size))
+    out = np.empty((mass.size, 2))
+    _deposit(heights, container.x_min, width, inlet_column, mass, container.areal_density,
+             np.tan(container.repose_angle) * width, draws[0], draws[1], draws[2], out)
+    return out

@@ -1,0 +1,149 @@
+"""ROM stockpile: model file, range warnings, exact mass/id bookkeeping.
+
+The training data here is synthetic but physical: heaps of random height and
+shape with the 2-D point-sink funnel flow towards the outlet,
+|v| = q / (rho_A pi r) (mass flux q through every half circle around the
+outlet), inside the pile.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from cosim import sizes
+from cosim.particles import ParticleStore
+from cosim.storage import make_storage
+from surrogate.rom import metrics
+from surrogate.rom.container import Container
+from surrogate.rom.grid import Grid, mass_field
+from surrogate.rom.model import OutOfTrainingRange, RomModel
+from surrogate.rom.storage import RomStorage
+
+OWNER = 3
+CONTAINER = Container(x_min=-10.0, x_max=10.0, floor=0.0, outlet_x=0.0, inlet_x=0.0,
+                      areal_density=1600.0, repose_angle=0.6)
+GRID = Grid.covering(-10.0, 10.0, 0.0, 8.0, 1.0)
+
+
+def heap(rng, height, centre):
+    """Positions of a triangular heap (slope 0.6) sampled uniformly, 0.4 m spacing."""
+    x, y = np.meshgrid(np.arange(-9.8, 10, 0.4), np.arange(0.2, 8, 0.4))
+    x, y = x.ravel(), y.ravel()
+    inside = y < height - 0.6 * np.abs(x - centre)
+    return np.column_stack((x[inside], y[inside])) + rng.normal(0, 0.02, (inside.sum(), 2))
+
+
+def sink_flow(position, rate):
+    offset = position - [CONTAINER.outlet_x, CONTAINER.floor]
+    r = np.maximum(np.linalg.norm(offset, axis=1), 0.5)
+    return -rate / (CONTAINER.areal_density * np.pi * r)[:, None] * offset / r[:, None]
+
+
+def synthetic_training(samples=40, seed=1):
+    rng = np.random.default_rng(seed)
+    masses, velocities, q_out, q_in = [], [], [], []
+    x, y = GRID.centres()
+    centres = np.column_stack([g.ravel() for g in np.meshgrid(x, y)])
+    for _ in range(samples):
+        position = heap(rng, rng.uniform(4, 7.5), rng.uniform(-2, 2))
+        mass = np.full(len(position), 0.16 * CONTAINER.areal_density)
+        field = mass_field(GRID, position, mass)
+        rate = rng.uniform(0, 400)
+        velocity = sink_flow(centres, rate).reshape(GRID.ny, GRID.nx, 2) * (field > 0)[..., None]
+        masses.append(field), velocities.append(velocity)
+        q_out.append(rate), q_in.append(rng.uniform(0, 300))
+    return np.array(masses), np.array(q_out), np.array(q_in), np.array(velocities)
+
+
+@pytest.fixture(scope="module")
+def trained():
+    mass, q_out, q_in, velocity = synthetic_training()
+    return RomModel(GRID, n_mass_modes=6, n_velocity_modes=6, ridge=1e-3,
+                    container=CONTAINER).fit(mass, q_out, q_in, velocity), (mass, q_out, velocity)
+
+
+def test_model_learns_the_funnel_and_round_trips(trained, tmp_path):
+    model, (mass, q_out, velocity) = trained
+    predicted = np.array([model.predict(m, q, 100.0) for m, q in zip(mass, q_out)])
+    assert metrics.velocity_field_rel_error(predicted, velocity, mass) < 0.3
+    path = model.save(tmp_path / "pile.rom.npz")
+    loaded = RomModel.load(path)
+    assert loaded.header() == model.header()
+    assert loaded.container == CONTAINER and loaded.grid == GRID
+    np.testing.assert_array_equal(loaded.predict(mass[0], 200.0, 50.0),
+                                  model.predict(mass[0], 200.0, 50.0))
+
+
+def test_out_of_range_input_warns_naming_the_input(trained):
+    model, (mass, q_out, _) = trained
+    with pytest.warns(OutOfTrainingRange, match=r"discharge_rate = 1900 kg/s .*training range"):
+        model.predict(mass[0], 1900.0, 10.0)
+    with pytest.warns(OutOfTrainingRange, match="held_mass"):
+        model.predict(mass[0] * 3.0, 100.0, 10.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model.predict(mass[0], float(q_out[0]), 100.0)
+
+
+def filled_storage(model, rng, seed=0):
+    position = heap(rng, 6.0, 0.0)
+    store = ParticleStore(first_id=10)
+    store.add_attribute("tracking_id", np.uint64, 0)
+    ids = store.add(mass=rng.uniform(200, 300, len(position)), f=sizes.swebrec(),
+                    grade=rng.uniform(0, 1, len(position)), hardness=1.0, owner=OWNER,
+                    tracking_id=1)
+    storage = make_storage("rom", model=model, rng=np.random.default_rng(seed))
+    storage.bind(store, OWNER)
+    storage.place(ids, position)
+    return store, storage, ids
+
+
+def test_rom_storage_conserves_mass_and_ids_and_follows_the_rate(trained):
+    model, _ = trained
+    rng = np.random.default_rng(4)
+    store, storage, ids = filled_storage(model, rng)
+    total = store.total_mass()
+    held0 = storage.held_mass()
+    received, left, rate, dt = [ids], [], 150.0, 1.0
+    for k in range(40):
+        new = store.add(mass=np.full(3, 50.0), f=sizes.swebrec(), grade=0.5, hardness=2.0,
+                        owner=OWNER, tracking_id=100 + k)
+        storage.receive(new, k * dt)
+        received.append(new)
+        total += 150.0
+        leaving = storage.step(k * dt, dt, rate)
+        store.set_owner(store.slots(leaving), OWNER + 1, (k + 1) * dt)
+        left.append(leaving)
+        # feeding and discharging at the same rate keeps the held mass constant
+        assert abs(storage.held_mass() - held0) <= 300.0
+    left, received = np.concatenate(left), np.concatenate(received)
+    assert np.unique(left).size == left.size
+    held = storage.held_ids()
+    assert np.array_equal(np.sort(np.concatenate((left, held))), np.sort(received))
+    assert store.total_mass(OWNER + 1) == pytest.approx(rate * 40 * dt, abs=300.0)
+    assert store.total_mass(OWNER) + store.total_mass(OWNER + 1) == pytest.approx(total,
+                                                                                 rel=1e-12)
+    # particles leave from the outlet region, not from anywhere
+    assert np.abs(store.position[store.slots(left), 0]).mean() < 3.0
+    fields = storage.fields()
+    assert fields["mass"].sum() == pytest.approx(storage.held_mass(), rel=1e-12)
+
+
+def test_feed_prediction_covers_the_horizon_from_the_funnel(trained):
+    model, _ = trained
+    store, storage, _ = filled_storage(model, np.random.default_rng(2))
+    storage.step(0.0, 1.0, 200.0)
+    ids, share = storage.predict(30.0, 200.0)
+    assert share.sum() == pytest.approx(storage._credit_kg + 200.0 * 30.0)
+    assert np.abs(store.position[store.slots(ids), 0]).max() < 6.0
+
+
+def test_tracking_error_bounds():
+    out = {"time": np.array([1.0, 2.0, 40.0]), "tracking_id": np.array([1, 2, 3]),
+           "mass": np.array([10.0, 10.0, 5.0])}
+    other = {**out, "tracking_id": np.array([4, 5, 6])}
+    assert metrics.tracking_error(out, out, 0.0, 60.0) == 0.0
+    assert metrics.tracking_error(out, other, 0.0, 60.0) == 1.0
+    half = {**out, "tracking_id": np.array([1, 5, 3])}
+    assert metrics.tracking_error(half, out, 0.0, 60.0) == pytest.approx(0.25)
