@@ -1,0 +1,271 @@
+"""DEM configuration: geometry, material, particle sizes and time-step rule.
+
+All values are SI. The defaults describe the paper's stockpile (section
+"Simulator": a 60 m tall pile holding up to 2,000 t in ~20,000 pseudo-
+particles, i.e. ~100 kg each) in 2D: a wide floor with low kerb walls (free
+slopes), two inlets above the pile and one outlet with a feeder in the floor.
+
+Contact model (see ``surrogate/dem/README.md`` for the full equations)
+----------------------------------------------------------------------
+Linear spring-dashpot normal force ``F_n = k_n delta + c_n d(delta)/dt``
+(clipped at 0, minus an optional constant cohesion pull), damping
+``c_n = 2 zeta sqrt(k_n m_eff)`` with ``zeta`` chosen so that a binary impact
+rebounds with the configured restitution *including* the force clipping
+(Schwager & Poeschel 2007, Granular Matter 9:465); tangential spring
+``k_t`` with Coulomb limit ``mu F_n`` and contact history; elastic-plastic
+rolling resistance (Ai et al. 2011, Powder Technol. 206:269, model C) with
+rolling stiffness ``k_r = 2.25 k_n mu_r^2 R_eff^2`` and limit
+``mu_r R_eff F_n``.
+
+Time step
+---------
+Contact duration of the linear spring for the stiffest, lightest pair (two
+smallest disks): ``t_c = pi sqrt(m_eff,min / k_n)`` with
+``m_eff,min = m(d_min) / 2`` (undamped half period, e.g. Cundall & Strack
+1979; O'Sullivan & Bray 2004 for the safety margin). The stability limit
+accepted without ``force`` is ``stable_dt = t_c / dt_safety_factor``.
+Symplectic Euler on a single linear contact is unstable above
+``dt = (2 / pi) t_c``; in a dense packing each disk has several contacts so
+the true limit is lower (~0.3-0.45 t_c), hence the default factor 15.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cosim.errors import ValidationError
+
+GRAVITY = 9.81
+"""Gravitational acceleration [m/s^2], along -y."""
+
+MIN_RESTITUTION = 0.25
+"""Smallest restitution a clipped linear dashpot reaches with zeta <= 0.6."""
+
+
+def _pairs(value, name):
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] < 1:
+        raise ValidationError(name, "a list of [x, y] pairs [m]", f"got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValidationError(name, "finite coordinates [m]")
+    return arr
+
+
+@dataclass
+class DemConfig:
+    """Parameters of the 2D stockpile DEM (SI units; defaults in brackets).
+
+    Geometry
+    --------
+    floor_width : float
+        Width of the floor [m] (160), centred on x = 0, at y = 0.
+    side_wall_height : float
+        Height of the vertical walls at both floor ends [m] (3: kerbs, so the
+        pile's slopes are free; set >= pile height for a bunker).
+    inlets : list of [x, y]
+        Inlet points above the pile [m] ([[-2, 62], [2, 62]]).
+    inlet_width : float
+        Width of the inlet stream [m] (1.0): emitted disks are laid in rows
+        this wide above the inlet point.
+    inlet_velocity : float
+        Downward speed of emitted material [m/s] (2.0, a belt discharge).
+    outlets : list of float
+        x of the outlet centres in the floor [m] ([0.0]).
+    outlet_width : float
+        Width of each outlet opening [m] (4.0, > 2D Beverloo width for
+        2 t/s with these particles).
+    feeder_zone_height : float
+        Height above the floor of the zone from which the feeder draws [m]
+        (1.0, about two layers of disks).
+    max_discharge_rate : float
+        Largest feeder rate [kg/s] (2000; paper: 2 t/s).
+
+    Material
+    --------
+    density : float
+        Solid density of the disks [kg/m^3] (2700, granite-like ore). A disk
+        of diameter d has the mass of a sphere, ``density pi d^3 / 6``.
+    normal_stiffness : float
+        Linear normal spring k_n [N/m] (4e7). Chosen as low as realistic:
+        at the base of a 60 m pile the mean contact force is about
+        rho_b g H d ~ 1.2e5 N, so the overlap stays below ~1 % of the mean
+        diameter (0.34 m); the CLI reports the largest overlap.
+    tangential_stiffness_ratio : float
+        k_t / k_n [-] (2/7, the ratio that gives equal normal and tangential
+        oscillation periods for spheres).
+    friction : float
+        Coulomb friction coefficient mu, particle-particle and wall [-] (0.6).
+    rolling_resistance : float
+        Rolling resistance coefficient mu_r [-] (0.3; disks roll too easily
+        without it).
+    restitution : float
+        Normal coefficient of restitution e in [0.25, 1] [-] (0.3).
+    cohesion : float
+        Constant attractive force per contact while in contact [N] (0).
+
+    Particles and integration
+    -------------------------
+    diameter_min, diameter_max : float
+        Disk diameter range [m] (0.2, 0.48).
+    skin : float
+        Verlet-list skin [m] (0.05); lists are rebuilt when a disk has moved
+        more than skin / 2 since the last build.
+    dt_safety_factor : float
+        stable_dt = t_c / dt_safety_factor [-] (15, >= 5).
+    """
+
+    floor_width: float = 160.0
+    side_wall_height: float = 3.0
+    inlets: list = field(default_factory=lambda: [[-2.0, 62.0], [2.0, 62.0]])
+    inlet_width: float = 1.0
+    inlet_velocity: float = 2.0
+    outlets: list = field(default_factory=lambda: [0.0])
+    outlet_width: float = 4.0
+    feeder_zone_height: float = 1.0
+    max_discharge_rate: float = 2000.0
+    density: float = 2700.0
+    normal_stiffness: float = 4.0e7
+    tangential_stiffness_ratio: float = 2.0 / 7.0
+    friction: float = 0.6
+    rolling_resistance: float = 0.3
+    restitution: float = 0.3
+    cohesion: float = 0.0
+    diameter_min: float = 0.2
+    diameter_max: float = 0.48
+    skin: float = 0.05
+    dt_safety_factor: float = 15.0
+
+    def __post_init__(self):
+        self.inlets = _pairs(self.inlets, "inlets").tolist()
+        outlets = np.atleast_1d(np.asarray(self.outlets, dtype=np.float64))
+        if outlets.ndim != 1 or outlets.size < 1 or not np.isfinite(outlets).all():
+            raise ValidationError("outlets", "a non-empty list of finite x positions [m]")
+        self.outlets = outlets.tolist()
+        positive = ("floor_width", "side_wall_height", "inlet_width", "outlet_width",
+                    "feeder_zone_height", "density", "normal_stiffness",
+                    "tangential_stiffness_ratio", "diameter_min", "diameter_max", "skin")
+        for name in positive:
+            value = float(getattr(self, name))
+            if not math.isfinite(value) or value <= 0:
+                raise ValidationError(name, "finite and > 0", f"got {value!r}")
+            setattr(self, name, value)
+        for name, low, high in (("friction", 0.0, 10.0), ("rolling_resistance", 0.0, 10.0),
+                                ("cohesion", 0.0, math.inf), ("inlet_velocity", 0.0, 1e3),
+                                ("max_discharge_rate", 0.0, 1e6)):
+            value = float(getattr(self, name))
+            if not math.isfinite(value) and high != math.inf or not low <= value <= high:
+                raise ValidationError(name, f"in [{low:g}, {high:g}]", f"got {value!r}")
+            setattr(self, name, value)
+        if not MIN_RESTITUTION <= float(self.restitution) <= 1.0:
+            raise ValidationError("restitution", f"in [{MIN_RESTITUTION:g}, 1]",
+                                  f"got {self.restitution!r}; a clipped linear dashpot "
+                                  "cannot dissipate more")
+        self.restitution = float(self.restitution)
+        if self.diameter_max < self.diameter_min:
+            raise ValidationError("diameter_max", f">= diameter_min = {self.diameter_min:g} m",
+                                  f"got {self.diameter_max!r}")
+        if not float(self.dt_safety_factor) >= 5.0:
+            raise ValidationError("dt_safety_factor", ">= 5", f"got {self.dt_safety_factor!r}")
+        self.dt_safety_factor = float(self.dt_safety_factor)
+        half = self.floor_width / 2
+        for x in self.outlets:
+            if abs(x) + self.outlet_width / 2 > half - self.diameter_max:
+                raise ValidationError("outlets", f"inside the floor |x| + outlet_width/2 < {half:g} m",
+                                      f"got {x!r}")
+        for x, y in self.inlets:
+            if abs(x) > half or y <= 0:
+                raise ValidationError("inlets", f"above the floor (|x| <= {half:g} m, y > 0)",
+                                      f"got [{x!r}, {y!r}]")
+
+    # ----------------------------------------------------------- derived
+    def sphere_mass(self, diameter):
+        """Mass [kg] of a disk of ``diameter`` [m]: a sphere of ``density``."""
+        return self.density * math.pi / 6.0 * np.asarray(diameter, dtype=np.float64) ** 3
+
+    def diameter_of_mass(self, mass):
+        """Diameter [m] of a sphere of ``mass`` [kg], clipped to the size range."""
+        d = np.cbrt(6.0 * np.asarray(mass, dtype=np.float64) / (math.pi * self.density))
+        return np.clip(d, self.diameter_min, self.diameter_max)
+
+    @property
+    def tangential_stiffness(self) -> float:
+        """k_t [N/m]."""
+        return self.normal_stiffness * self.tangential_stiffness_ratio
+
+    @property
+    def damping_ratio(self) -> float:
+        """zeta [-] of the normal dashpot that yields ``restitution`` with clipping."""
+        return damping_ratio_for_restitution(self.restitution)
+
+    @property
+    def contact_time(self) -> float:
+        """t_c = pi sqrt(m_eff,min / k_n) [s] for two disks of ``diameter_min``."""
+        m_eff = float(self.sphere_mass(self.diameter_min)) / 2.0
+        return math.pi * math.sqrt(m_eff / self.normal_stiffness)
+
+    @property
+    def stable_dt(self) -> float:
+        """Largest time step accepted without ``force``: t_c / dt_safety_factor [s]."""
+        return self.contact_time / self.dt_safety_factor
+
+    # --------------------------------------------------------------- I/O
+    def to_dict(self) -> dict:
+        """Plain dict (JSON/TOML friendly)."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "DemConfig":
+        """Build from a dict; unknown keys are refused by name."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ValidationError("dem config", f"keys among {sorted(names)}",
+                                  f"unknown key(s) {unknown}")
+        return cls(**data)
+
+    @classmethod
+    def from_toml(cls, path) -> "DemConfig":
+        """Read a TOML file; the keys may sit at top level or under ``[dem]``."""
+        import tomllib
+
+        with open(path, "rb") as handle:
+            data = tomllib.load(handle)
+        return cls.from_dict(data.get("dem", data))
+
+
+def _restitution_with_clipping(zeta: float) -> float:
+    """Rebound speed / impact speed of a linear spring-dashpot whose force is
+    clipped at zero (contact ends when k delta + c delta' = 0).
+
+    delta(t) = (v0/w) exp(-a t) sin(w t), a = zeta w0, w = w0 sqrt(1 - zeta^2);
+    the force vanishes at tan(w t*) = -2 a w / (w0^2 - 2 a^2), w t* in (pi/2, pi].
+    """
+    w0 = 1.0
+    a = zeta * w0
+    w = w0 * math.sqrt(1.0 - zeta * zeta)
+    phase = math.atan2(2.0 * a * w, -(w0 * w0 - 2.0 * a * a))
+    t_end = phase / w
+    return -math.exp(-a * t_end) * (math.cos(phase) - (a / w) * math.sin(phase))
+
+
+def damping_ratio_for_restitution(e: float) -> float:
+    """Damping ratio zeta with the clipped-force restitution equal to ``e``.
+
+    Without clipping zeta = -ln e / sqrt(pi^2 + ln^2 e); clipping makes the
+    contact end earlier, so zeta is found by bisection on
+    ``_restitution_with_clipping`` (monotone decreasing in zeta on [0, 0.6]).
+    """
+    if e >= 1.0:
+        return 0.0
+    low, high = 0.0, 0.6
+    for _ in range(80):
+        mid = 0.5 * (low + high)
+        if _restitution_with_clipping(mid) > e:
+            low = mid
+        else:
+            high = mid
+    return 0.5 * (low + high)

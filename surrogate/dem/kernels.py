@@ -1,0 +1,443 @@
+"""Numba kernels of the 2D DEM: neighbour lists, contact forces, integration, feeder.
+
+Everything that runs every step lives here and is compiled with
+``numba.njit(cache=True)``; the Python side (``simulation.py``) only calls
+``run_steps`` for a chunk of steps and handles the rare events (list rebuild,
+removal of a discharged disk, emission).
+
+Data layout (structure of arrays, N disks, row i):
+``pos`` (N, 2) [m], ``vel`` (N, 2) [m/s], ``omega`` (N,) [rad/s],
+``radius`` (N,) [m], ``inv_mass`` (N,) [1/kg], ``inv_inertia`` (N,)
+[1/(kg m^2)], ``body_mass`` (N,) [kg].
+
+Pair list (half Verlet list in CSR form): the neighbours j > i of disk i
+within ``r_i + r_j + skin`` are ``nbr[start[i]:start[i+1]]`` in increasing j;
+``hist_t[k]`` is the tangential spring elongation [m] and ``hist_r[k]`` the
+rolling spring angle [rad] of pair k (zero when not in contact).
+Wall list: the same for disk-segment pairs (``wall_start``, ``wall``,
+``wall_hist_t``, ``wall_hist_r``), segments as rows ``(ax, ay, bx, by)``.
+
+Contact law (pair i, j; n the unit vector from j to i, t = (-n_y, n_x)):
+
+* overlap ``delta = r_i + r_j - |x_i - x_j|``, normal velocity
+  ``v_n = (v_i - v_j) . n`` (< 0 approaching),
+  ``F_n = max(k_n delta - c_n v_n, 0) - F_coh`` with
+  ``c_n = 2 zeta sqrt(k_n m_eff)``, ``m_eff = m_i m_j / (m_i + m_j)``;
+* tangential slip velocity ``v_t = (v_i - v_j) . t - (r_i w_i + r_j w_j)``,
+  spring ``xi += v_t dt``, ``F_t = -k_t xi - c_t v_t`` with
+  ``c_t = 2 zeta sqrt(k_t m_eff)``; if ``|F_t| > mu F_n+`` then
+  ``F_t = sign(F_t) mu F_n+`` and ``xi = -F_t / k_t`` (sliding), where
+  ``F_n+ = max(k_n delta - c_n v_n, 0)``;
+* rolling angle ``theta += (w_i - w_j) dt``, ``M_r = -k_r theta`` with
+  ``k_r = 2.25 k_n mu_r^2 R_eff^2``, ``R_eff = r_i r_j / (r_i + r_j)``,
+  capped at ``mu_r R_eff F_n+`` (Ai et al. 2011, model C without dashpot);
+* force on i ``F_n n + F_t t``, torque on i ``-r_i F_t + M_r``; the
+  opposite force and torque ``-r_j F_t - M_r`` on j.
+
+Walls are the same law with ``m_eff = m_i``, ``R_eff = r_i`` and a static
+wall. Integration: symplectic (semi-implicit) Euler,
+``v += (F/m + g) dt; x += v dt; w += (M/I) dt``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# indices into the ``params`` vector handed to the kernels
+P_KN, P_KT, P_CN, P_CT, P_MU, P_MUR, P_KR, P_COH, P_G = range(9)
+N_PARAMS = 9
+
+
+@njit(cache=True)
+def _cell_grid(pos, cell_size):
+    """Counting sort of disks into square cells; returns the grid description."""
+    n = pos.shape[0]
+    xmin = pos[0, 0]
+    xmax = pos[0, 0]
+    ymin = pos[0, 1]
+    ymax = pos[0, 1]
+    for i in range(1, n):
+        xmin = min(xmin, pos[i, 0])
+        xmax = max(xmax, pos[i, 0])
+        ymin = min(ymin, pos[i, 1])
+        ymax = max(ymax, pos[i, 1])
+    # a scattered (e.g. exploding) system must not allocate a huge grid
+    max_cells = 4 * n + 64
+    while True:
+        nx = int((xmax - xmin) / cell_size) + 1
+        ny = int((ymax - ymin) / cell_size) + 1
+        if nx * ny <= max_cells:
+            break
+        cell_size *= 1.5
+    cell_of = np.empty(n, dtype=np.int64)
+    count = np.zeros(nx * ny + 1, dtype=np.int64)
+    for i in range(n):
+        cx = int((pos[i, 0] - xmin) / cell_size)
+        cy = int((pos[i, 1] - ymin) / cell_size)
+        c = cy * nx + cx
+        cell_of[i] = c
+        count[c + 1] += 1
+    for c in range(nx * ny):
+        count[c + 1] += count[c]
+    fill = count[:-1].copy()
+    members = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        c = cell_of[i]
+        members[fill[c]] = i
+        fill[c] += 1
+    return xmin, ymin, cell_size, nx, ny, count, members
+
+
+@njit(cache=True)
+def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_to_old):
+    """Half Verlet list (CSR, neighbours sorted) with contact history carried over.
+
+    ``new_to_old[i]`` is the row disk i had when the old list was built
+    (-1 for a new disk); the mapping must be increasing where defined, so
+    the old list of a disk is sorted in the same order as the new one.
+    """
+    n = pos.shape[0]
+    start = np.zeros(n + 1, dtype=np.int64)
+    capacity = 8 * n + 16
+    nbr = np.empty(capacity, dtype=np.int64)
+    if n == 0:
+        return start, nbr[:0], np.zeros(0), np.zeros(0)
+    rmax = radius.max()
+    xmin, ymin, cs, nx, ny, cstart, members = _cell_grid(pos, 2.0 * rmax + skin)
+    k = 0
+    for i in range(n):
+        cx = int((pos[i, 0] - xmin) / cs)
+        cy = int((pos[i, 1] - ymin) / cs)
+        first = k
+        for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
+            for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
+                c = gy * nx + gx
+                for m in range(cstart[c], cstart[c + 1]):
+                    j = members[m]
+                    if j <= i:
+                        continue
+                    dx = pos[i, 0] - pos[j, 0]
+                    dy = pos[i, 1] - pos[j, 1]
+                    cut = radius[i] + radius[j] + skin
+                    if dx * dx + dy * dy < cut * cut:
+                        if k == capacity:
+                            capacity *= 2
+                            grown = np.empty(capacity, dtype=np.int64)
+                            grown[:k] = nbr[:k]
+                            nbr = grown
+                        # insertion keeps this disk's neighbours sorted
+                        p = k
+                        while p > first and nbr[p - 1] > j:
+                            nbr[p] = nbr[p - 1]
+                            p -= 1
+                        nbr[p] = j
+                        k += 1
+        start[i + 1] = k
+    nbr = nbr[:k].copy()
+    ht = np.zeros(k)
+    hr = np.zeros(k)
+    for i in range(n):
+        io = new_to_old[i]
+        if io < 0 or io + 1 >= old_start.shape[0]:
+            continue
+        q = old_start[io]
+        q_end = old_start[io + 1]
+        for p in range(start[i], start[i + 1]):
+            jo = new_to_old[nbr[p]]
+            if jo < 0:
+                continue
+            while q < q_end and old_nbr[q] < jo:
+                q += 1
+            if q < q_end and old_nbr[q] == jo:
+                ht[p] = old_ht[q]
+                hr[p] = old_hr[q]
+    return start, nbr, ht, hr
+
+
+@njit(cache=True)
+def _closest_on_segment(px, py, ax, ay, bx, by):
+    ex = bx - ax
+    ey = by - ay
+    u = ((px - ax) * ex + (py - ay) * ey) / (ex * ex + ey * ey)
+    u = min(max(u, 0.0), 1.0)
+    return ax + u * ex, ay + u * ey
+
+
+@njit(cache=True)
+def build_wall_list(pos, radius, skin, walls, old_start, old_wall, old_ht, old_hr, new_to_old):
+    """Disk-segment candidate list (CSR) within ``r_i + skin``, history carried over."""
+    n = pos.shape[0]
+    nw = walls.shape[0]
+    start = np.zeros(n + 1, dtype=np.int64)
+    capacity = n + 16
+    wall = np.empty(capacity, dtype=np.int64)
+    k = 0
+    for i in range(n):
+        for w in range(nw):
+            cx, cy = _closest_on_segment(pos[i, 0], pos[i, 1], walls[w, 0], walls[w, 1],
+                                         walls[w, 2], walls[w, 3])
+            dx = pos[i, 0] - cx
+            dy = pos[i, 1] - cy
+            cut = radius[i] + skin
+            if dx * dx + dy * dy < cut * cut:
+                if k == capacity:
+                    capacity *= 2
+                    grown = np.empty(capacity, dtype=np.int64)
+                    grown[:k] = wall[:k]
+                    wall = grown
+                wall[k] = w
+                k += 1
+        start[i + 1] = k
+    wall = wall[:k].copy()
+    ht = np.zeros(k)
+    hr = np.zeros(k)
+    for i in range(n):
+        io = new_to_old[i]
+        if io < 0 or io + 1 >= old_start.shape[0]:
+            continue
+        for p in range(start[i], start[i + 1]):
+            for q in range(old_start[io], old_start[io + 1]):
+                if old_wall[q] == wall[p]:
+                    ht[p] = old_ht[q]
+                    hr[p] = old_hr[q]
+    return start, wall, ht, hr
+
+
+@njit(cache=True, inline="always")
+def _contact(kn, kt, cn, ct, mu, mur, kr_coef, coh, delta, vn, vt, wrel, m_eff, r_eff, xi, theta, dt):
+    """Normal force, tangential force, rolling torque and updated springs of one contact."""
+    sq = math.sqrt(m_eff)
+    fn = kn * delta - cn * sq * vn
+    if fn < 0.0:
+        fn = 0.0
+    xi = xi + vt * dt
+    ft = -kt * xi - ct * sq * vt
+    limit = mu * fn
+    if abs(ft) > limit:
+        ft = limit if ft > 0.0 else -limit
+        xi = -ft / kt
+    mr = 0.0
+    kr = kr_coef * r_eff * r_eff
+    if kr > 0.0:
+        theta = theta + wrel * dt
+        mr = -kr * theta
+        mlim = mur * r_eff * fn
+        if abs(mr) > mlim:
+            mr = -mlim if theta > 0.0 else mlim
+            theta = -mr / kr
+    else:
+        theta = 0.0
+    return fn - coh, ft, mr, xi, theta
+
+
+@njit(cache=True)
+def compute_forces(pos, vel, omega, radius, body_mass, force, torque, start, nbr, ht, hr,
+                   wall_start, wall, wall_ht, wall_hr, walls, params, dt):
+    """Contact forces [N] and torques [N m] of all disks; updates contact history."""
+    n = pos.shape[0]
+    kn = params[P_KN]
+    kt = params[P_KT]
+    cn = params[P_CN]
+    ct = params[P_CT]
+    mu = params[P_MU]
+    mur = params[P_MUR]
+    krc = params[P_KR]
+    coh = params[P_COH]
+    for i in range(n):
+        force[i, 0] = 0.0
+        force[i, 1] = 0.0
+        torque[i] = 0.0
+    for i in range(n):
+        xi_ = pos[i, 0]
+        yi = pos[i, 1]
+        ri = radius[i]
+        mi = body_mass[i]
+        fxi = 0.0
+        fyi = 0.0
+        ti = 0.0
+        for p in range(start[i], start[i + 1]):
+            j = nbr[p]
+            dx = xi_ - pos[j, 0]
+            dy = yi - pos[j, 1]
+            rsum = ri + radius[j]
+            d2 = dx * dx + dy * dy
+            if d2 >= rsum * rsum:
+                ht[p] = 0.0
+                hr[p] = 0.0
+                continue
+            d = math.sqrt(d2)
+            nx_ = dx / d
+            ny_ = dy / d
+            dvx = vel[i, 0] - vel[j, 0]
+            dvy = vel[i, 1] - vel[j, 1]
+            rj = radius[j]
+            vn = dvx * nx_ + dvy * ny_
+            vt = -dvx * ny_ + dvy * nx_ - (ri * omega[i] + rj * omega[j])
+            mj = body_mass[j]
+            fn, ft, mr, xi, theta = _contact(kn, kt, cn, ct, mu, mur, krc, coh, rsum - d, vn, vt,
+                                             omega[i] - omega[j], mi * mj / (mi + mj),
+                                             ri * rj / rsum, ht[p], hr[p], dt)
+            ht[p] = xi
+            hr[p] = theta
+            fx = fn * nx_ - ft * ny_
+            fy = fn * ny_ + ft * nx_
+            fxi += fx
+            fyi += fy
+            ti += -ri * ft + mr
+            force[j, 0] -= fx
+            force[j, 1] -= fy
+            torque[j] += -rj * ft - mr
+        for p in range(wall_start[i], wall_start[i + 1]):
+            w = wall[p]
+            cx, cy = _closest_on_segment(xi_, yi, walls[w, 0], walls[w, 1], walls[w, 2], walls[w, 3])
+            dx = xi_ - cx
+            dy = yi - cy
+            d2 = dx * dx + dy * dy
+            if d2 >= ri * ri:
+                wall_ht[p] = 0.0
+                wall_hr[p] = 0.0
+                continue
+            d = math.sqrt(d2)
+            nx_ = dx / d
+            ny_ = dy / d
+            vn = vel[i, 0] * nx_ + vel[i, 1] * ny_
+            vt = -vel[i, 0] * ny_ + vel[i, 1] * nx_ - ri * omega[i]
+            fn, ft, mr, xi, theta = _contact(kn, kt, cn, ct, mu, mur, krc, coh, ri - d, vn, vt,
+                                             omega[i], mi, ri, wall_ht[p], wall_hr[p], dt)
+            wall_ht[p] = xi
+            wall_hr[p] = theta
+            fxi += fn * nx_ - ft * ny_
+            fyi += fn * ny_ + ft * nx_
+            ti += -ri * ft + mr
+        force[i, 0] += fxi
+        force[i, 1] += fyi
+        torque[i] += ti
+
+
+@njit(cache=True)
+def run_steps(n_steps, dt, time, pos, vel, omega, force, torque, radius, body_mass, inv_mass,
+              inv_inertia, start, nbr, ht, hr, wall_start, wall, wall_ht, wall_hr, walls, params,
+              ref_pos, half_skin, candidates, outlet_lo, outlet_hi, zone_top, rates, credits,
+              credit_cap, tracked_mass, removed):
+    """Advance up to ``n_steps`` steps of ``dt`` [s] from ``time`` [s].
+
+    Stops early after a step in which a disk moved more than ``half_skin``
+    since the last list build (the caller rebuilds) or the feeder of an
+    outlet took disks (their rows are written to ``removed``; the caller
+    removes them). Feeder rule: each outlet accumulates a mass credit
+    ``rate dt`` per step and takes the lowest disk whose centre lies in its
+    zone (``outlet_lo <= x <= outlet_hi``, ``y <= zone_top``) whenever the
+    credit covers that disk's tracked mass; with no disk in the zone the
+    credit is capped at ``credit_cap`` [kg] so an empty feeder does not
+    store up a burst.
+
+    Returns ``(steps_done, time, n_removed, rebuild_needed)``.
+    """
+    n = pos.shape[0]
+    g = params[P_G]
+    limit2 = half_skin * half_skin
+    n_removed = 0
+    for step in range(n_steps):
+        compute_forces(pos, vel, omega, radius, body_mass, force, torque, start, nbr, ht, hr,
+                       wall_start, wall, wall_ht, wall_hr, walls, params, dt)
+        moved = False
+        for i in range(n):
+            vel[i, 0] += force[i, 0] * inv_mass[i] * dt
+            vel[i, 1] += (force[i, 1] * inv_mass[i] - g) * dt
+            omega[i] += torque[i] * inv_inertia[i] * dt
+            pos[i, 0] += vel[i, 0] * dt
+            pos[i, 1] += vel[i, 1] * dt
+            dx = pos[i, 0] - ref_pos[i, 0]
+            dy = pos[i, 1] - ref_pos[i, 1]
+            if dx * dx + dy * dy > limit2:
+                moved = True
+        time += dt
+        for o in range(rates.shape[0]):
+            if rates[o] <= 0.0:
+                continue
+            credits[o] += rates[o] * dt
+            while True:
+                best = -1
+                for c in range(candidates.shape[0]):
+                    i = candidates[c]
+                    if i < 0:
+                        continue
+                    if outlet_lo[o] <= pos[i, 0] <= outlet_hi[o] and pos[i, 1] <= zone_top:
+                        if best < 0 or pos[i, 1] < pos[best, 1]:
+                            best = i
+                if best < 0:
+                    credits[o] = min(credits[o], credit_cap)
+                    break
+                if credits[o] < tracked_mass[best] or n_removed == removed.shape[0]:
+                    break
+                credits[o] -= tracked_mass[best]
+                removed[n_removed] = best
+                n_removed += 1
+                for c in range(candidates.shape[0]):
+                    if candidates[c] == best:
+                        candidates[c] = -1
+        if n_removed > 0 or moved:
+            return step + 1, time, n_removed, moved
+    return n_steps, time, n_removed, False
+
+
+@njit(cache=True)
+def zone_candidates(pos, outlet_lo, outlet_hi, zone_top, margin):
+    """Rows of disks within ``margin`` [m] of any feeder zone (valid until next rebuild)."""
+    n = pos.shape[0]
+    out = np.empty(n, dtype=np.int64)
+    k = 0
+    for i in range(n):
+        if pos[i, 1] > zone_top + margin:
+            continue
+        for o in range(outlet_lo.shape[0]):
+            if outlet_lo[o] - margin <= pos[i, 0] <= outlet_hi[o] + margin:
+                out[k] = i
+                k += 1
+                break
+    return out[:k].copy()
+
+
+@njit(cache=True)
+def elastic_energy(pos, radius, start, nbr, wall_start, wall, walls, ht, wall_ht, params):
+    """Energy [J] stored in the normal and tangential springs."""
+    kn = params[P_KN]
+    kt = params[P_KT]
+    e = 0.0
+    for i in range(pos.shape[0]):
+        for p in range(start[i], start[i + 1]):
+            j = nbr[p]
+            dx = pos[i, 0] - pos[j, 0]
+            dy = pos[i, 1] - pos[j, 1]
+            delta = radius[i] + radius[j] - math.sqrt(dx * dx + dy * dy)
+            if delta > 0.0:
+                e += 0.5 * kn * delta * delta + 0.5 * kt * ht[p] * ht[p]
+        for p in range(wall_start[i], wall_start[i + 1]):
+            w = wall[p]
+            cx, cy = _closest_on_segment(pos[i, 0], pos[i, 1], walls[w, 0], walls[w, 1],
+                                         walls[w, 2], walls[w, 3])
+            dx = pos[i, 0] - cx
+            dy = pos[i, 1] - cy
+            delta = radius[i] - math.sqrt(dx * dx + dy * dy)
+            if delta > 0.0:
+                e += 0.5 * kn * delta * delta + 0.5 * kt * wall_ht[p] * wall_ht[p]
+    return e
+
+
+@njit(cache=True)
+def max_overlap_ratio(pos, radius, start, nbr):
+    """Largest pair overlap divided by the smaller diameter [-]."""
+    worst = 0.0
+    for i in range(pos.shape[0]):
+        for p in range(start[i], start[i + 1]):
+            j = nbr[p]
+            dx = pos[i, 0] - pos[j, 0]
+            dy = pos[i, 1] - pos[j, 1]
+            delta = radius[i] + radius[j] - math.sqrt(dx * dx + dy * dy)
+            ratio = delta / (2.0 * min(radius[i], radius[j]))
+            if ratio > worst:
+                worst = ratio
+    return worst
