@@ -17,6 +17,7 @@ from cosim.errors import ValidationError
 COMMAND_MODULES = (
     "cosim.commands.sizes",
     "cosim.commands.events",
+    "cosim.commands.reference",
 )
 """Modules that add subcommands, in the order ``--help`` lists them."""
 
