@@ -18,6 +18,10 @@ COMMAND_MODULES = (
     "cosim.commands.sizes",
     "cosim.commands.events",
     "cosim.commands.reference",
+    "cosim.commands.monitor",
+    "cosim.commands.serve",
+    "cosim.commands.stockpile",
+    "cosim.commands.integration",
 )
 """Modules that add subcommands, in the order ``--help`` lists them."""
 

@@ -59,7 +59,7 @@ MAX_HORIZON_S = 3600.0
 """Longest feed prediction [s]."""
 
 FEED_PROFILE_INTERVALS = 30
-"""The predicted feed is also given per interval: horizon / 30 each."""
+"""``/feed`` also gives the prediction per interval: horizon / 30 each."""
 
 
 class StorageView:
@@ -185,24 +185,9 @@ class StorageView:
         """The feed the storage model predicts for the next ``horizon_s`` [s]
         at the current rate (paper section "Predicting the properties of the
         mill feed"): mass [kg], mass-weighted grade, hardness and D80 [m],
-        the tracking ids expected, and a ``profile`` of mass and grade per
-        interval of horizon / 30."""
-        rate = self.discharge_rate
-        ids, share = self.storage.predict(horizon_s, rate)
-        summary = self._feed_summary(ids, share)
-        summary["horizon_s"] = float(horizon_s)
-        edges = np.linspace(0.0, horizon_s, FEED_PROFILE_INTERVALS + 1)
-        cum_mass = np.zeros(edges.size)
-        cum_grade_mass = np.zeros(edges.size)
-        for k, h in enumerate(edges[1:], start=1):
-            ids_k, share_k = self.storage.predict(float(h), rate)
-            cum_mass[k] = share_k.sum()
-            cum_grade_mass[k] = share_k @ self.particles.grade[self.particles.slots(ids_k)]
-        mass = np.diff(cum_mass)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            grade = np.where(mass > 0, np.diff(cum_grade_mass) / mass, np.nan)
-        summary["profile"] = {"t_s": edges[1:], "mass_kg": mass, "grade": grade}
-        return summary
+        particle count and the tracking ids expected."""
+        ids, share = self.storage.predict(horizon_s, self.discharge_rate)
+        return self._feed_summary(ids, share)
 
     def _feed_summary(self, ids, share) -> dict:
         store = self.particles
@@ -319,8 +304,9 @@ def create_app(asset, lock=None) -> web.Application:
 
     async def feed(request):
         horizon = _query_number(request, "horizon", 30.0, 0.0, MAX_HORIZON_S, low_open=True)
-        return web.json_response(to_json({"horizon_s": horizon,
-                                          **read(asset.predicted_feed, horizon)}))
+        summary, profile = read(_feed_with_profile, asset, horizon)
+        return web.json_response(to_json({**summary, "horizon_s": horizon,
+                                          "profile": profile}))
 
     async def openapi(request):
         return web.json_response(OPENAPI)
@@ -330,6 +316,23 @@ def create_app(asset, lock=None) -> web.Application:
                           ("/openapi.json", openapi)):
         app.router.add_get(path, handler)
     return app
+
+
+def _feed_with_profile(asset, horizon: float) -> tuple[dict, dict]:
+    """The asset's predicted feed for ``horizon`` [s], and per interval of
+    horizon / FEED_PROFILE_INTERVALS the mass [kg] and grade predicted to
+    leave in it (differences of the cumulative predictions)."""
+    ends = np.linspace(0.0, horizon, FEED_PROFILE_INTERVALS + 1)[1:]
+    cumulative = [asset.predicted_feed(float(h)) for h in ends]
+    mass = np.array([feed["mass_kg"] for feed in cumulative])
+    grade_mass = np.array([feed["mass_kg"] * feed["grade"] if feed["mass_kg"] > 0 else 0.0
+                           for feed in cumulative])
+    interval_mass = np.diff(mass, prepend=0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        interval_grade = np.where(interval_mass > 1e-9 * max(mass[-1], 1.0),
+                                  np.diff(grade_mass, prepend=0.0) / interval_mass, np.nan)
+    return cumulative[-1], {"t_s": ends, "mass_kg": interval_mass,
+                            "grade": np.clip(interval_grade, 0.0, 1.0)}
 
 
 def _field_list(raw: str | None) -> list[str]:

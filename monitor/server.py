@@ -1,0 +1,114 @@
+"""The monitor web server: one page, its script and style, and a proxy to the stockpile.
+
+Source: paper section "Integration test": "A monitoring service is created
+as a stand-alone web application. It receives virtual sensor information
+from the stockpile asset using a REST interface" (``surrogate.rest``).
+
+The monitor is its own process. The page talks only to the monitor (same
+origin, nothing from the network): ``/api/ENDPOINT`` is forwarded to
+``STOCKPILE/ENDPOINT`` with its query string. When the stockpile cannot be
+reached the proxy answers 503 ``{"error": "stockpile unreachable", ...}``
+and the page says so; the monitor keeps serving and the page recovers as
+soon as the stockpile answers again (the page polls every second).
+
+Parameters (``create_monitor_app``)
+-----------------------------------
+stockpile_url : str
+    Base URL of the stockpile's REST interface, e.g. ``http://127.0.0.1:8081``.
+timeout_s : float
+    Time [s] the proxy waits for the stockpile before calling it
+    unreachable, default 3.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import importlib.resources
+from urllib.parse import urlsplit
+
+import aiohttp
+from aiohttp import web
+
+from cosim.errors import ValidationError
+
+PROXIED_ENDPOINTS = ("health", "totals", "history", "fields", "particles", "feed",
+                     "openapi.json")
+"""Stockpile endpoints the page may read through the monitor."""
+
+STATIC_FILES = {"monitor.js": "application/javascript", "monitor.css": "text/css"}
+"""Files served under ``/static/`` (all the page needs: no external network)."""
+
+
+def check_stockpile_url(url: str) -> str:
+    """The stockpile base URL without a trailing slash; http(s) with a host."""
+    parts = urlsplit(url)
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        raise ValidationError("stockpile", "an http:// or https:// URL with a host",
+                              f"got {url!r}")
+    return url.rstrip("/")
+
+
+def _asset(name: str) -> bytes:
+    return importlib.resources.files("monitor").joinpath("static", name).read_bytes()
+
+
+def create_monitor_app(stockpile_url: str, timeout_s: float = 3.0) -> web.Application:
+    """aiohttp application of the monitor for the stockpile at ``stockpile_url``."""
+    stockpile_url = check_stockpile_url(stockpile_url)
+    app = web.Application()
+    pages = {name: _asset(name) for name in ("index.html", *STATIC_FILES)}
+
+    async def open_session(app):
+        app["session"] = aiohttp.ClientSession(
+            timeout=aiohttp.ClientTimeout(total=timeout_s))
+        yield
+        await app["session"].close()
+
+    app.cleanup_ctx.append(open_session)
+
+    async def index(request):
+        return web.Response(body=pages["index.html"], content_type="text/html",
+                            headers={"Cache-Control": "no-store"})
+
+    async def static(request):
+        name = request.match_info["name"]
+        if name not in STATIC_FILES:
+            raise web.HTTPNotFound()
+        return web.Response(body=pages[name], content_type=STATIC_FILES[name],
+                            headers={"Cache-Control": "no-store"})
+
+    async def own_health(request):
+        return web.json_response({"status": "ok", "stockpile": stockpile_url})
+
+    async def proxy(request):
+        endpoint = request.match_info["endpoint"]
+        if endpoint not in PROXIED_ENDPOINTS:
+            return web.json_response({"error": f"endpoint: must be one of "
+                                      f"{list(PROXIED_ENDPOINTS)} (got {endpoint!r})",
+                                      "field": "endpoint"}, status=404)
+        url = f"{stockpile_url}/{endpoint}"
+        try:
+            async with request.app["session"].get(url, params=request.query) as upstream:
+                body = await upstream.read()
+                return web.Response(body=body, status=upstream.status,
+                                    content_type="application/json",
+                                    headers={"Cache-Control": "no-store"})
+        except (aiohttp.ClientError, asyncio.TimeoutError) as exc:
+            return web.json_response(
+                {"error": "stockpile unreachable", "stockpile": stockpile_url,
+                 "detail": type(exc).__name__}, status=503)
+
+    app.router.add_get("/", index)
+    app.router.add_get("/static/{name}", static)
+    app.router.add_get("/monitor/health", own_health)
+    app.router.add_get("/api/{endpoint}", proxy)
+    return app
+
+
+async def serve_monitor(stockpile_url: str, host: str = "127.0.0.1", port: int = 0):
+    """Start the monitor in the running loop; returns ``(runner, actual_port)``."""
+    runner = web.AppRunner(create_monitor_app(stockpile_url), access_log=None)
+    await runner.setup()
+    site = web.TCPSite(runner, host, port)
+    await site.start()
+    return runner, site._server.sockets[0].getsockname()[1]
