@@ -6,7 +6,7 @@ space (eq. observation); given a storage flow model, the particles that
 will leave within a horizon (30 s in the paper) are known in advance, so the
 feed that will reach the mill is predicted before it leaves the storage.
 
-The prediction for [t, t + H) is the mass-weighted mean of each property
+The prediction for (t, t + H] is the mass-weighted mean of each property
 over the particles the storage model expects to leave,
 
     p_pred(t) = sum_n w_n p_n / sum_n w_n,   (ids, w) = storage.predict(H, q_out)
@@ -14,7 +14,7 @@ over the particles the storage model expects to leave,
 with w_n [kg] the mass of particle n expected to leave. Any model of
 ``cosim.storage`` (FIFO, perfect mixing, the ROM) provides ``predict``.
 The realised feed is the mass-weighted mean over the storage's exit events
-in [t, t + H). The storage averages are mass-weighted means over the
+in (t, t + H]. The storage averages are mass-weighted means over the
 particles held, from the storage's enter/exit events.
 """
 
@@ -65,7 +65,7 @@ class FeedPredictionProbe(Component):
         Component name (time-series columns ``<name>.grade`` ...).
 
     Outputs ``mass`` [kg] and the mass-weighted ``grade``, ``hardness`` of
-    the feed predicted for [t, t + H), sampled at the end of each step.
+    the feed predicted for (t, t + H], sampled at the end of each step.
     """
 
     def __init__(self, storage, discharge_rate, *, horizon: float = 30.0,
@@ -87,18 +87,17 @@ class FeedPredictionProbe(Component):
 
 def realised_feed(exits: pd.DataFrame, times, horizon: float,
                   properties=PROPERTIES) -> pd.DataFrame:
-    """Mass and mass-weighted properties of what left in [t, t + horizon) for each t.
+    """Mass and mass-weighted properties of what left in (t, t + horizon] for each t.
 
     ``exits`` are the storage's exit-event particle rows (``time``, ``mass``
-    and the properties).
+    and the properties); an exit stamped t has left by t, so a prediction
+    made at t is about the exits stamped in (t, t + horizon].
     """
     times = np.asarray(times, dtype=np.float64)
     t = exits["time"].to_numpy(dtype=np.float64)
     mass = exits["mass"].to_numpy(dtype=np.float64)
-    # events in [t, t + H) == events in (t + H - H, t + H] shifted by an epsilon
-    shifted = t + 1e-9
     columns = [mass] + [mass * exits[p].to_numpy(dtype=np.float64) for p in properties]
-    sums = windowed_sums(shifted, np.column_stack(columns), times + horizon, horizon)
+    sums = windowed_sums(t, np.column_stack(columns), times + horizon, horizon)
     frame = pd.DataFrame({"time": times, "mass": sums[:, 0]})
     with np.errstate(invalid="ignore", divide="ignore"):
         for j, p in enumerate(properties):
