@@ -22,6 +22,9 @@ COMMAND_MODULES = (
     "cosim.commands.serve",
     "cosim.commands.stockpile",
     "cosim.commands.integration",
+    "cosim.commands.rom",
+    "cosim.commands.simulate",
+    "cosim.commands.reproduce",
 )
 """Modules that add subcommands, in the order ``--help`` lists them."""
 

@@ -150,8 +150,9 @@ class StockpileAsset:
         grade = store.grade[slots]
         source = store.attribute("source")[slots]
         unique, first, inverse = np.unique(tids, return_index=True, return_inverse=True)
-        out_mass = np.bincount(inverse, weights=mass, minlength=unique.size)
-        out_grade = np.bincount(inverse, weights=mass * grade, minlength=unique.size)
+        out_mass = np.bincount(inverse, weights=mass, minlength=unique.size).astype(np.float64)
+        out_grade = np.bincount(inverse, weights=mass * grade,
+                                minlength=unique.size).astype(np.float64)
         out_grade = np.divide(out_grade, out_mass, out=np.zeros_like(out_mass), where=out_mass > 0)
         store.remove_slots(slots)
         self.mass_out_kg += float(mass.sum())
@@ -164,7 +165,8 @@ class StockpileAsset:
         """Mass [kg] held per tracking id."""
         tids = self.particles.attribute("tracking_id")
         unique, inverse = np.unique(tids, return_inverse=True)
-        mass = np.bincount(inverse, weights=self.particles.mass, minlength=unique.size)
+        mass = np.bincount(inverse, weights=self.particles.mass,
+                           minlength=unique.size).astype(np.float64)
         return {int(t): float(m) for t, m in zip(unique, mass)}
 
     def totals(self) -> dict:

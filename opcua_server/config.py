@@ -1,0 +1,107 @@
+"""Configuration of the mock 800xA process simulator (TOML).
+
+The default file ``opcua_server/config/default.toml`` documents every key
+and its unit. A user's file is merged over the defaults key by key, so it
+only needs the keys it changes. Every value is validated at load; a bad one
+is a ``ValidationError`` naming the key and its allowed range.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+from cosim.errors import ValidationError, check_finite_range
+
+DEFAULT_CONFIG = Path(__file__).with_name("config") / "default.toml"
+DEFAULT_NODEMAP = Path(__file__).with_name("config") / "nodemap.toml"
+
+
+def _merge(base: dict, override: dict) -> dict:
+    out = dict(base)
+    for key, value in override.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _read(path: Path, field: str) -> dict:
+    try:
+        with open(path, "rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise ValidationError(field, "an existing TOML file", f"{path} not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ValidationError(field, "valid TOML", f"{path}: {exc}") from None
+
+
+def _positive(section: dict, name: str, where: str) -> float:
+    if name not in section:
+        raise ValidationError(f"{where}.{name}", "present", "missing key")
+    return float(check_finite_range(f"{where}.{name}", section[name], 0.0, low_open=True))
+
+
+def load_config(path: str | Path | None = None, overrides: dict | None = None) -> dict:
+    """Defaults, merged with the file at ``path`` and then ``overrides``; validated."""
+    config = _read(DEFAULT_CONFIG, "config")
+    if path is not None:
+        config = _merge(config, _read(Path(path), "config"))
+    if overrides:
+        config = _merge(config, overrides)
+    for belt in ("cv101", "cv301"):
+        section = config[belt]
+        for key in ("length_m", "bin_length_m", "max_belt_speed_m_s"):
+            _positive(section, key, belt)
+        if section["bin_length_m"] > section["length_m"]:
+            raise ValidationError(f"{belt}.bin_length_m", f"<= {belt}.length_m",
+                                  f"got {section['bin_length_m']}")
+        check_finite_range(f"{belt}.belt_speed_m_s", section["belt_speed_m_s"], 0.0,
+                           section["max_belt_speed_m_s"], unit="m/s")
+    sp = config["sp201"]
+    _positive(sp, "max_discharge_rate_kg_s", "sp201")
+    check_finite_range("sp201.discharge_rate_kg_s", sp["discharge_rate_kg_s"], 0.0,
+                       sp["max_discharge_rate_kg_s"], unit="kg/s")
+    _positive(config["server"], "tick_s", "server")
+    lots = config["feed"].get("lots", [])
+    if not lots:
+        raise ValidationError("feed.lots", "a non-empty list of lots")
+    for k, lot in enumerate(lots):
+        where = f"feed.lots[{k}]"
+        _positive(lot, "duration_s", where)
+        _positive(lot, "feed_rate_kg_s", where)
+        _positive(lot, "hardness", where)
+        check_finite_range(f"{where}.grade", lot.get("grade", float("nan")), 0.0, 1.0)
+        if int(lot.get("source", -1)) < 0:
+            raise ValidationError(f"{where}.source", "an integer >= 0", f"got {lot.get('source')}")
+    first = int(config["feed"].get("first_tracking_id", 1))
+    if not 0 <= first < 2**63:
+        raise ValidationError("feed.first_tracking_id", "in [0, 2**63)", f"got {first}")
+    return config
+
+
+def load_nodemap(path: str | Path | None = None) -> dict[str, str]:
+    """Logical name -> node id string (``nsu=URI;s=ID`` or ``ns=N;s=ID``).
+
+    The client addresses the plant only through this map, so the same client
+    can be pointed at a real plant server with the same layout.
+    """
+    data = _read(Path(path) if path else DEFAULT_NODEMAP, "node_map")
+    nodes = data.get("nodes", {})
+    missing = [name for name in REQUIRED_NODES if name not in nodes]
+    if missing:
+        raise ValidationError("node_map", f"an entry for each of {REQUIRED_NODES}",
+                              f"missing {missing}")
+    return {name: str(value) for name, value in nodes.items()}
+
+
+REQUIRED_NODES = (
+    "simulation_time", "discharge_rate_setpoint", "held_mass", "average_grade", "heartbeat",
+    "surrogate_time", "sp201", "inbound_last_sequence", "inbound_acknowledged_sequence",
+    "pending_sequence", "pending_tracking_ids", "pending_masses", "pending_grades",
+    "pending_hardness", "pending_sources", "pending_times", "acknowledge", "outbound",
+    "report_outflow", "outbound_last_sequence", "plant", "advance_time",
+    "bin_discharged_event_type",
+)
+"""Logical names the stockpile client needs in the node map."""

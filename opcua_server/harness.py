@@ -1,0 +1,181 @@
+"""Start the plant server and the stockpile client as real processes (tests, demo).
+
+Used by ``minetwin integration-test``, the tests and the benchmark, and meant
+for a pytest plugin: ``prepare_state`` makes throw-away credentials and
+certificates for one run; ``ServerProcess`` and ``StockpileProcess`` start
+``minetwin serve-800xa`` / ``minetwin stockpile`` on 127.0.0.1 and a free
+port and stop them (SIGTERM, then SIGKILL) in ``stop()``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from opcua_server.security import (APPLICATION_URI_CLIENT, ROLES, ensure_certificate,
+                                   pki_paths, trust_certificate, write_users)
+
+
+def free_port() -> int:
+    """A TCP port free on 127.0.0.1 right now."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def prepare_state(root: Path) -> dict:
+    """Users with fresh random passwords, a trusted client certificate.
+
+    Returns ``{"server_state", "client_state", "passwords": {role: pw},
+    "client_cert", "client_key", "password_files": {role: path}}``.
+    """
+    root = Path(root)
+    server_state, client_state = root / "server", root / "client"
+    passwords = {role: secrets.token_urlsafe(12) for role in ROLES}
+    write_users(server_state / "users.toml", {r: (r, pw) for r, pw in passwords.items()})
+    files = {}
+    for role, pw in passwords.items():
+        path = root / f"{role}.password"
+        path.write_text(pw + "\n")
+        os.chmod(path, 0o600)
+        files[role] = path
+    pki = pki_paths(client_state)
+    asyncio.run(ensure_certificate(pki["key"], pki["cert"], APPLICATION_URI_CLIENT, client=True))
+    trust_certificate(server_state, pki["cert"])
+    return {"server_state": server_state, "client_state": client_state, "passwords": passwords,
+            "password_files": files, "client_cert": pki["cert"], "client_key": pki["key"]}
+
+
+def _minetwin() -> list[str]:
+    return [sys.executable, "-m", "cosim.cli"]
+
+
+class ManagedProcess:
+    """A child process with its output in a log file; ``stop()`` ends it."""
+
+    def __init__(self, args: list[str], log_path: Path, env: dict | None = None):
+        self.args = args
+        self.log_path = Path(log_path)
+        self.log = open(self.log_path, "ab")
+        self.proc = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT,
+                                     env={**os.environ, **(env or {})})
+
+    def wait_for_file(self, path: Path, timeout: float = 30.0) -> str:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if Path(path).exists() and Path(path).read_text():
+                return Path(path).read_text()
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"{self.args[3]} exited with {self.proc.returncode}; "
+                                   f"see {self.log_path}:\n{self.log_path.read_text()[-3000:]}")
+            time.sleep(0.05)
+        raise TimeoutError(f"{path} did not appear within {timeout} s; see {self.log_path}")
+
+    def kill(self) -> None:
+        """SIGKILL: a crash, no clean-up."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+
+    def stop(self, timeout: float = 15.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(10)
+        self.log.close()
+        return self.proc.returncode
+
+
+class ServerProcess(ManagedProcess):
+    """``minetwin serve-800xa`` on 127.0.0.1 and a free port."""
+
+    def __init__(self, workdir: Path, state: dict, *, speed: float = 1.0, lockstep: bool = False,
+                 insecure: bool = False, config: Path | None = None, port: int | None = None):
+        workdir = Path(workdir)
+        self.port = port or free_port()
+        self.ledger = workdir / "ledger.json"
+        ready = workdir / "server.ready"
+        ready.unlink(missing_ok=True)
+        args = _minetwin() + ["serve-800xa", "--port", str(self.port), "--host", "127.0.0.1",
+                              "--state-dir", str(state["server_state"]), "--speed", str(speed),
+                              "--ledger", str(self.ledger), "--ready-file", str(ready)]
+        args += ["--lockstep"] if lockstep else []
+        args += ["--insecure"] if insecure else []
+        args += ["--config", str(config)] if config else []
+        super().__init__(args, workdir / "server.log")
+        self.url = self.wait_for_file(ready).strip()
+
+
+class StockpileProcess(ManagedProcess):
+    """``minetwin stockpile`` connected to ``url`` as the ``surrogate`` user."""
+
+    def __init__(self, workdir: Path, state: dict, url: str, *, model: str = "fifo",
+                 lockstep: bool = False, period: float = 1.0, duration: float | None = None,
+                 rest: bool = False, extra: list[str] | None = None, name: str = "stockpile"):
+        workdir = Path(workdir)
+        self.summary = workdir / f"{name}.summary.json"
+        self.checkpoint = workdir / f"{name}.checkpoint"
+        self.rest_port_file = workdir / f"{name}.rest_port"
+        args = _minetwin() + ["stockpile", "--server", url, "--model", model,
+                              "--state-dir", str(state["client_state"]),
+                              "--password-file", str(state["password_files"]["surrogate"]),
+                              "--checkpoint", str(self.checkpoint), "--summary", str(self.summary)]
+        args += ["--lockstep", "--period", str(period)] if lockstep else []
+        args += ["--duration", str(duration)] if duration is not None else []
+        if rest:
+            self.rest_port_file.unlink(missing_ok=True)
+            args += ["--rest-port", "0", "--rest-port-file", str(self.rest_port_file)]
+        args += extra or []
+        super().__init__(args, workdir / f"{name}.log")
+        self.rest_url = None
+        if rest:
+            self.rest_url = f"http://127.0.0.1:{self.wait_for_file(self.rest_port_file).strip()}"
+
+
+def drain_and_stop(server: ServerProcess, stockpile: StockpileProcess | None,
+                   timeout: float = 30.0) -> tuple[dict, dict | None]:
+    """Freeze the server's clock, let the stockpile catch up, stop both.
+
+    Returns ``(ledger, summary)``; the stockpile has applied every record and
+    sent every report when the server's pending list is empty and its
+    acknowledged number equals the last sequence number.
+    """
+    import json
+
+    server.proc.send_signal(signal.SIGUSR1)
+    end = time.monotonic() + timeout
+    ledger = {}
+    while time.monotonic() < end:
+        time.sleep(0.3)
+        if server.ledger.exists():
+            ledger = json.loads(server.ledger.read_text())
+            if ledger.get("paused"):
+                break
+    target = ledger.get("time_s", 0.0)
+    summary = None
+    if stockpile is not None:
+        import urllib.request
+
+        while stockpile.rest_url and time.monotonic() < end:
+            try:
+                with urllib.request.urlopen(stockpile.rest_url + "/totals", timeout=2) as resp:
+                    if json.loads(resp.read())["time_s"] >= target - 1e-9:
+                        break
+            except OSError:
+                pass
+            time.sleep(0.2)
+        time.sleep(1.0)  # one more exchange cycle: reports sent, records acknowledged
+        stockpile.stop()
+        summary = json.loads(stockpile.summary.read_text())
+    server.stop()
+    return json.loads(server.ledger.read_text()), summary

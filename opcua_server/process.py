@@ -1,0 +1,348 @@
+"""Process simulation of the mock 800xA plant: CV101 -> SP201 -> CV301.
+
+Source: paper section "Integration test": "The ABB simulator represent the
+assets of the incoming and outgoing conveyors, discretized in bins moving
+with the controlled conveyor belt speed. Each bin on the incoming conveyor
+contain material with a specific mass, ore grade and a tracking-id. That
+information is exchanged with the stockpile asset when a bin reach the
+discharge point." DESIGN.md section 6.
+
+Model
+-----
+A belt of length L [m] holds n = round(L / b) bins of length b [m]; slot 0
+is the loading point, slot n-1 the discharge point. The belt advances by
+v dt [m]; every time it has advanced one bin length the bins shift by one
+slot. On CV101 the bin leaving slot n-1 is discharged onto the stockpile
+and becomes an *inbound record*; the new bin at slot 0 is filled by the feed
+schedule with mass  m = q b / v  (q: the lot's feed rate [kg/s], v: belt
+speed [m/s]), the lot's grade, hardness and source, and the next tracking id.
+On CV301 the bin at slot 0 collects the outflow the stockpile reports; it
+moves on with the belt and is delivered at the end.
+
+Exchange (the part that must lose nothing)
+------------------------------------------
+* Inbound: every record gets the next sequence number and stays *pending*
+  until the stockpile acknowledges a sequence number >= its own.
+* Outbound: ``report_outflow(sequence, tracking_ids, masses, grades)`` is
+  applied once per sequence number: a repeat of an applied number is
+  answered "already applied" without effect; a gap is refused.
+* Every refusal raises ``ExchangeRefused(status, field, message)`` before
+  any state changes.
+
+Parameters come from the configuration (``opcua_server.config``); units SI.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cosim.errors import ValidationError
+
+MASS_TOLERANCE = 1e-9
+"""Relative slack [-] when checking a tracking id's outflow against its inflow
+(the stockpile splits a bin into particles; float sums differ in the last bits)."""
+
+
+class ExchangeRefused(Exception):
+    """A refused exchange call: OPC UA status name, offending field, message."""
+
+    def __init__(self, status: str, field: str, allowed: str, detail: str = ""):
+        self.status = status
+        self.field = field
+        self.message = str(ValidationError(field, allowed, detail))
+        super().__init__(self.message)
+
+
+@dataclass
+class InboundRecord:
+    """A bin discharged onto the stockpile."""
+
+    sequence: int
+    tracking_id: int
+    mass_kg: float
+    grade: float
+    hardness: float
+    source: int
+    time_s: float
+
+
+class Belt:
+    """Conveyor discretised in bins (structure of arrays over the slots)."""
+
+    def __init__(self, length_m: float, bin_length_m: float, speed_m_s: float):
+        self.bin_length_m = float(bin_length_m)
+        self.n_bins = max(int(round(length_m / bin_length_m)), 1)
+        self.speed_m_s = float(speed_m_s)
+        self.offset_m = 0.0
+        self.tracking_id = np.zeros(self.n_bins, dtype=np.uint64)
+        self.mass = np.zeros(self.n_bins)
+        self.grade = np.zeros(self.n_bins)
+        self.hardness = np.zeros(self.n_bins)
+        self.source = np.full(self.n_bins, -1, dtype=np.int32)
+
+    def positions(self) -> np.ndarray:
+        """Centre of each bin [m] from the loading point."""
+        return (np.arange(self.n_bins) + 0.5) * self.bin_length_m + self.offset_m
+
+    def shifts(self, dt: float) -> int:
+        """Advance ``dt`` [s]; number of whole bin shifts that happen."""
+        self.offset_m += self.speed_m_s * dt
+        count = int(self.offset_m // self.bin_length_m)
+        self.offset_m -= count * self.bin_length_m
+        return count
+
+    def shift(self) -> dict:
+        """Move every bin one slot on; return the bin that left the head."""
+        head = {"tracking_id": int(self.tracking_id[-1]), "mass": float(self.mass[-1]),
+                "grade": float(self.grade[-1]), "hardness": float(self.hardness[-1]),
+                "source": int(self.source[-1])}
+        for arr, empty in ((self.tracking_id, 0), (self.mass, 0.0), (self.grade, 0.0),
+                           (self.hardness, 0.0), (self.source, -1)):
+            arr[1:] = arr[:-1].copy()
+            arr[0] = empty
+        return head
+
+
+class PlantProcess:
+    """CV101, SP201's exchange ledger and CV301 (no OPC UA in here).
+
+    Parameters
+    ----------
+    config : dict
+        A validated configuration (``opcua_server.config.load_config``).
+    """
+
+    def __init__(self, config: dict):
+        self.config = config
+        c1, c3, sp = config["cv101"], config["cv301"], config["sp201"]
+        self.cv101 = Belt(c1["length_m"], c1["bin_length_m"], c1["belt_speed_m_s"])
+        self.cv301 = Belt(c3["length_m"], c3["bin_length_m"], c3["belt_speed_m_s"])
+        self.max_belt_speed = {"cv101": float(c1["max_belt_speed_m_s"]),
+                               "cv301": float(c3["max_belt_speed_m_s"])}
+        self.max_discharge_rate = float(sp["max_discharge_rate_kg_s"])
+        self.discharge_rate_setpoint = float(sp["discharge_rate_kg_s"])
+        self.lots = config["feed"]["lots"]
+        self._lot_ends = np.cumsum([float(lot["duration_s"]) for lot in self.lots])
+        self.next_tracking_id = int(config["feed"]["first_tracking_id"])
+        self.time = 0.0
+        # inbound ledger
+        self.last_sequence = 0
+        self.acknowledged_sequence = 0
+        self.pending: list[InboundRecord] = []
+        self.entered_mass: dict[int, float] = {}
+        self.source_of: dict[int, int] = {}
+        # outbound ledger
+        self.outbound_sequence = 0
+        self.left_mass: dict[int, float] = {}
+        self._grades: dict[int, float] = {}
+        self.duplicate_reports = 0
+        self.loading_contents: dict[int, float] = {}
+        self.cv301_contents: list[dict[int, float]] = [dict() for _ in range(self.cv301.n_bins)]
+        self.bins_out = 0
+        self.delivered_mass_kg = 0.0
+        self.delivered_by_source: dict[int, float] = {}
+        self.outflow_log: list[dict] = []
+
+    # -------------------------------------------------------------- feeding
+    def _lot_at(self, t: float) -> dict:
+        period = self._lot_ends[-1]
+        k = int(np.searchsorted(self._lot_ends, t % period, side="right"))
+        return self.lots[min(k, len(self.lots) - 1)]
+
+    def _load_cv101(self) -> None:
+        belt = self.cv101
+        if belt.speed_m_s <= 0:
+            return
+        lot = self._lot_at(self.time)
+        belt.tracking_id[0] = self.next_tracking_id
+        belt.mass[0] = float(lot["feed_rate_kg_s"]) * belt.bin_length_m / belt.speed_m_s
+        belt.grade[0] = float(lot["grade"])
+        belt.hardness[0] = float(lot["hardness"])
+        belt.source[0] = int(lot["source"])
+        self.next_tracking_id += 1
+
+    # --------------------------------------------------------------- advance
+    def advance(self, dt: float) -> list[InboundRecord]:
+        """Advance the plant ``dt`` [s]; return the new inbound records."""
+        dt = float(dt)
+        if not np.isfinite(dt) or dt < 0:
+            raise ValidationError("dt", "finite and >= 0 s", f"got {dt!r}")
+        new = []
+        shifts = self.cv101.shifts(dt)
+        for k in range(shifts):
+            head = self.cv101.shift()
+            self._load_cv101()
+            if head["mass"] > 0:
+                new.append(self._discharge(head, self.time + dt * (k + 1) / shifts))
+        for _ in range(self.cv301.shifts(dt)):
+            self._shift_cv301()
+        self.time += dt
+        return new
+
+    def _discharge(self, head: dict, t: float) -> InboundRecord:
+        self.last_sequence += 1
+        record = InboundRecord(self.last_sequence, head["tracking_id"], head["mass"],
+                               head["grade"], head["hardness"], head["source"], t)
+        self.pending.append(record)
+        self.entered_mass[record.tracking_id] = record.mass_kg
+        self.source_of[record.tracking_id] = record.source
+        return record
+
+    def _shift_cv301(self) -> None:
+        belt = self.cv301
+        delivered = self.cv301_contents[-1]
+        for tid, mass in delivered.items():
+            source = self.source_of.get(tid, -1)
+            self.delivered_by_source[source] = self.delivered_by_source.get(source, 0.0) + mass
+            self.delivered_mass_kg += mass
+        belt.shift()
+        self.cv301_contents = [self.loading_contents] + self.cv301_contents[:-1]
+        if self.loading_contents:
+            self.bins_out += 1
+        self.loading_contents = {}
+        self._refresh_cv301_slot(0)
+
+    def _refresh_cv301_slot(self, slot: int) -> None:
+        contents = self.cv301_contents[slot]
+        mass = sum(contents.values())
+        self.cv301.mass[slot] = mass
+        self.cv301.tracking_id[slot] = next(iter(contents), 0)
+        self.cv301.grade[slot] = (sum(m * self._grades.get(t, 0.0) for t, m in contents.items())
+                                  / mass if mass > 0 else 0.0)
+
+    # -------------------------------------------------------------- inbound
+    def acknowledge(self, sequence: int) -> int:
+        """Drop pending records up to ``sequence``; return the acknowledged number."""
+        sequence = int(sequence)
+        if sequence < 0 or sequence > self.last_sequence:
+            raise ExchangeRefused("BadOutOfRange", "sequence",
+                                  f"in [0, {self.last_sequence}] (the last record sent)",
+                                  f"got {sequence}")
+        if sequence > self.acknowledged_sequence:
+            self.acknowledged_sequence = sequence
+            self.pending = [r for r in self.pending if r.sequence > sequence]
+        return self.acknowledged_sequence
+
+    def pending_arrays(self) -> dict[str, np.ndarray]:
+        """The unacknowledged records as plain arrays (the readable pending list)."""
+        p = self.pending
+        return {
+            "sequence": np.array([r.sequence for r in p], dtype=np.uint64),
+            "tracking_id": np.array([r.tracking_id for r in p], dtype=np.uint64),
+            "mass": np.array([r.mass_kg for r in p], dtype=np.float64),
+            "grade": np.array([r.grade for r in p], dtype=np.float64),
+            "hardness": np.array([r.hardness for r in p], dtype=np.float64),
+            "source": np.array([r.source for r in p], dtype=np.int32),
+            "time": np.array([r.time_s for r in p], dtype=np.float64),
+        }
+
+    # ------------------------------------------------------------- outbound
+    def report_outflow(self, sequence: int, tracking_ids, masses, grades) -> str:
+        """Apply one outflow report once; return "applied" or "already applied".
+
+        Refused (``ExchangeRefused``, nothing changed): a gap in the
+        sequence, arrays of different lengths, a repeated tracking id,
+        masses not finite and > 0, grades outside [0, 1], a tracking id that
+        never entered the stockpile, or more mass of a tracking id than
+        entered.
+        """
+        sequence = int(sequence)
+        if sequence <= self.outbound_sequence:
+            self.duplicate_reports += 1
+            return "already applied"
+        if sequence != self.outbound_sequence + 1:
+            raise ExchangeRefused("BadSequenceNumberInvalid", "sequence",
+                                  f"{self.outbound_sequence + 1} (the next outflow number)",
+                                  f"got {sequence}")
+        tids = np.asarray(tracking_ids, dtype=np.uint64).ravel()
+        mass = np.asarray(masses, dtype=np.float64).ravel()
+        grade = np.asarray(grades, dtype=np.float64).ravel()
+        for name, arr in (("masses", mass), ("grades", grade)):
+            if arr.size != tids.size:
+                raise ExchangeRefused("BadInvalidArgument", name,
+                                      "one value per tracking id",
+                                      f"got {arr.size} for {tids.size} tracking ids")
+        if np.unique(tids).size != tids.size:
+            raise ExchangeRefused("BadInvalidArgument", "tracking_ids",
+                                  "distinct within one report", "a tracking id is repeated")
+        bad = ~np.isfinite(mass) | (mass <= 0)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise ExchangeRefused("BadOutOfRange", "masses", "finite and > 0 kg",
+                                  f"got {mass[k]!r} at index {k}")
+        bad = ~np.isfinite(grade) | (grade < 0) | (grade > 1)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise ExchangeRefused("BadOutOfRange", "grades", "in [0, 1]",
+                                  f"got {grade[k]!r} at index {k}")
+        for k, tid in enumerate(tids.tolist()):
+            entered = self.entered_mass.get(tid)
+            if entered is None:
+                raise ExchangeRefused("BadInvalidArgument", "tracking_ids",
+                                      "ids of bins that entered the stockpile",
+                                      f"tracking id {tid} at index {k} never entered")
+            total = self.left_mass.get(tid, 0.0) + mass[k]
+            if total > entered * (1 + MASS_TOLERANCE) + 1e-12:
+                raise ExchangeRefused("BadOutOfRange", "masses",
+                                      f"<= the {entered:.6g} kg of tracking id {tid} that entered",
+                                      f"{total:.9g} kg would have left in total")
+        # accepted: apply
+        self.outbound_sequence = sequence
+        for tid, m, g in zip(tids.tolist(), mass.tolist(), grade.tolist()):
+            self.left_mass[tid] = self.left_mass.get(tid, 0.0) + m
+            self.loading_contents[tid] = self.loading_contents.get(tid, 0.0) + m
+            self._grades[tid] = g
+        self.cv301_contents[0] = self.loading_contents
+        self._refresh_cv301_slot(0)
+        self.outflow_log.append({"time_s": self.time, "sequence": sequence,
+                                 "mass_kg": float(mass.sum()),
+                                 "by_source": self._by_source(tids, mass)})
+        return "applied"
+
+    def _by_source(self, tids: np.ndarray, mass: np.ndarray) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for tid, m in zip(tids.tolist(), mass.tolist()):
+            key = str(self.source_of.get(tid, -1))
+            out[key] = out.get(key, 0.0) + m
+        return out
+
+    # ------------------------------------------------------------- setpoints
+    def set_discharge_rate(self, rate: float) -> None:
+        """Stockpile feeder setpoint [kg/s] in [0, max_discharge_rate]."""
+        rate = float(rate)
+        if not np.isfinite(rate) or rate < 0 or rate > self.max_discharge_rate:
+            raise ExchangeRefused("BadOutOfRange", "DischargeRateSetpoint",
+                                  f"in [0, {self.max_discharge_rate:g}] kg/s", f"got {rate!r}")
+        self.discharge_rate_setpoint = rate
+
+    def set_belt_speed(self, belt: str, speed: float) -> None:
+        """Belt speed [m/s] of ``cv101`` or ``cv301`` in [0, max]."""
+        speed = float(speed)
+        top = self.max_belt_speed[belt]
+        if not np.isfinite(speed) or speed < 0 or speed > top:
+            raise ExchangeRefused("BadOutOfRange", f"{belt.upper()}.BeltSpeed",
+                                  f"in [0, {top:g}] m/s", f"got {speed!r}")
+        getattr(self, belt).speed_m_s = speed
+
+    # ---------------------------------------------------------------- ledger
+    def ledger(self) -> dict:
+        """Everything needed to audit the exchange (written at shutdown)."""
+        return {
+            "time_s": self.time,
+            "bins_in": self.last_sequence,
+            "inbound_acknowledged": self.acknowledged_sequence,
+            "pending": len(self.pending),
+            "outbound_sequence": self.outbound_sequence,
+            "duplicate_reports_ignored": self.duplicate_reports,
+            "bins_out": self.bins_out + (1 if self.loading_contents else 0),
+            "mass_in_kg": float(sum(self.entered_mass.values())),
+            "mass_out_kg": float(sum(self.left_mass.values())),
+            "delivered_mass_kg": self.delivered_mass_kg,
+            "delivered_by_source": {str(k): v for k, v in self.delivered_by_source.items()},
+            "entered": {str(k): v for k, v in self.entered_mass.items()},
+            "left": {str(k): v for k, v in self.left_mass.items()},
+            "source_of": {str(k): v for k, v in self.source_of.items()},
+            "outflow_log": self.outflow_log,
+        }

@@ -1,0 +1,563 @@
+"""The mock 800xA OPC UA server (asyncua) around ``PlantProcess``.
+
+Address space (namespace ``urn:minetwin:mock800xa``, string node ids; the
+full list with browse paths is in ``opcua_server/README.md``)::
+
+    Objects/Plant/SimulationTime, Lockstep, AdvanceTime()
+    Objects/Plant/CV101/...   incoming belt: BeltSpeed, bins as arrays
+    Objects/Plant/SP201/...   DischargeRateSetpoint, reported values,
+                              Inbound/ (pending list, Acknowledge()),
+                              Outbound/ (ReportOutflow()), LastRefusal
+    Objects/Plant/CV301/...   outgoing belt: bins and their contents
+
+Time: in real-time mode the process advances by ``speed`` x the wall-clock
+time every ``tick_s``; in lockstep mode it advances only when a client with
+the ``surrogate`` role calls ``Plant.AdvanceTime(seconds)``, so a run is
+deterministic and independent of the wall clock.
+
+Every refused write or call answers an OPC UA bad status (BadOutOfRange,
+BadInvalidArgument, BadSequenceNumberInvalid, BadUserAccessDenied, ...);
+method calls also return the message naming the field as their output
+argument, and the last refusal's message is readable at
+``Plant.SP201.LastRefusal``. Nothing changes on a refusal.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from asyncua import Server, ua
+from asyncua.common.utils import ServiceError
+from asyncua.crypto.permission_rules import UserRole
+from asyncua.crypto.truststore import TrustStore
+from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
+from asyncua.server.address_space import AttributeService
+
+from opcua_server.process import ExchangeRefused, PlantProcess
+from opcua_server.security import (APPLICATION_URI_SERVER, PlantPermissions, PlantUserManager,
+                                   ensure_certificate, ensure_users, load_users, pki_paths)
+
+log = logging.getLogger("opcua_server")
+
+SECURE_POLICIES = [
+    ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
+    ua.SecurityPolicyType.Aes128Sha256RsaOaep_SignAndEncrypt,
+    ua.SecurityPolicyType.Aes256Sha256RsaPss_SignAndEncrypt,
+]
+"""Only SignAndEncrypt endpoints by default (Basic256Sha256 and the Aes policies)."""
+
+EVENT_FIELDS = (("Sequence", ua.VariantType.UInt64), ("TrackingId", ua.VariantType.UInt64),
+                ("Mass", ua.VariantType.Double), ("Grade", ua.VariantType.Double),
+                ("Hardness", ua.VariantType.Double), ("Source", ua.VariantType.Int32),
+                ("DischargeTime", ua.VariantType.Double))
+"""Properties of ``BinDischargedEventType`` (mass kg, time s)."""
+
+
+@dataclass
+class Writable:
+    """A variable clients may write: the roles allowed and what a write does."""
+
+    roles: tuple[str, ...]
+    apply: callable
+    variant: ua.VariantType = ua.VariantType.Double
+
+
+@dataclass
+class Refusals:
+    count: int = 0
+    last: str = ""
+    by_status: dict = field(default_factory=dict)
+
+
+class PlantAttributeService(AttributeService):
+    """Writes checked per node and per role, values validated before they land."""
+
+    def __init__(self, aspace, plant: "PlantServer"):
+        super().__init__(aspace)
+        self.plant = plant
+
+    async def write(self, params, user=None):
+        if user is None or user.role == UserRole.Admin:  # the server's own writes
+            return await super().write(params, user) if user else await super().write(params)
+        results = []
+        role = getattr(user, "plant_role", None)
+        for item in params.NodesToWrite:
+            target = self.plant.writable.get(item.NodeId)
+            if target is None or role not in target.roles or item.AttributeId != ua.AttributeIds.Value:
+                self.plant.refuse("BadUserAccessDenied",
+                                  f"{item.NodeId.to_string()}: not writable by role {role!r}")
+                results.append(ua.StatusCode(ua.StatusCodes.BadUserAccessDenied))
+                continue
+            value = item.Value.Value.Value if item.Value and item.Value.Value else None
+            try:
+                if isinstance(value, (list, tuple, np.ndarray)) or value is None:
+                    raise ExchangeRefused("BadTypeMismatch", item.NodeId.Identifier, "a scalar number",
+                                          f"got {type(value).__name__}")
+                target.apply(value)
+            except ExchangeRefused as exc:
+                self.plant.refuse(exc.status, exc.message)
+                results.append(ua.StatusCode(getattr(ua.StatusCodes, exc.status)))
+                continue
+            except (TypeError, ValueError) as exc:
+                self.plant.refuse("BadTypeMismatch", f"{item.NodeId.Identifier}: {exc}")
+                results.append(ua.StatusCode(ua.StatusCodes.BadTypeMismatch))
+                continue
+            stored = ua.DataValue(ua.Variant(self.plant.coerce(value, target.variant), target.variant))
+            results.append(await self._aspace.write_attribute_value(
+                item.NodeId, ua.AttributeIds.Value, stored))
+        return results
+
+
+class TrustListValidator:
+    """Accept a client certificate only if a copy is in the trust list folder.
+
+    The folder is read at every new secure channel, so dropping a client's
+    certificate into it takes effect without a restart; time range and
+    application URI are checked too.
+    """
+
+    OPTIONS = (CertificateValidatorOptions.TIME_RANGE | CertificateValidatorOptions.URI
+               | CertificateValidatorOptions.TRUSTED | CertificateValidatorOptions.PEER_CLIENT)
+
+    def __init__(self, folder: Path):
+        self.folder = Path(folder)
+
+    async def __call__(self, certificate, app_description) -> None:
+        if not any(p.suffix in (".der", ".pem", ".crt") for p in self.folder.glob("*")):
+            log.warning("refused client certificate: the trust list %s is empty", self.folder)
+            raise ServiceError(ua.StatusCodes.BadCertificateUntrusted)
+        store = TrustStore([self.folder], [])
+        await store.load()
+        try:
+            await CertificateValidator(self.OPTIONS, store).validate(certificate, app_description)
+        except ServiceError:
+            log.warning("refused client certificate %s", certificate.subject.rfc4514_string())
+            raise
+
+
+class PlantServer:
+    """asyncua server publishing a ``PlantProcess``.
+
+    Parameters
+    ----------
+    config : dict
+        Validated configuration (``opcua_server.config.load_config``).
+    speed : float
+        Simulation seconds per wall-clock second (real time = 1).
+    insecure : bool
+        Also offer the None security endpoint (local development only).
+    lockstep : bool
+        Advance only through ``Plant.AdvanceTime`` calls.
+    """
+
+    def __init__(self, config: dict, *, speed: float = 1.0, insecure: bool = False,
+                 lockstep: bool = False):
+        self.config = config
+        self.speed = float(speed)
+        self.insecure = insecure
+        self.lockstep = lockstep
+        self.process = PlantProcess(config)
+        srv = config["server"]
+        self.host, self.port = srv["host"], int(srv["port"])
+        self.state_dir = Path(srv["state_dir"])
+        self.uri = srv["namespace_uri"]
+        self.endpoint = f"opc.tcp://{self.host}:{self.port}/minetwin/"
+        self.refusals = Refusals()
+        self.writable: dict[ua.NodeId, Writable] = {}
+        self.max_surrogate_lag_s = 0.0
+        self.surrogate_time = None
+        self.paused = False
+        self._stop = asyncio.Event()
+        self._lock = asyncio.Lock()
+
+    # ---------------------------------------------------------------- set-up
+    def nid(self, name: str) -> ua.NodeId:
+        return ua.NodeId(name, self.idx)
+
+    async def start(self) -> None:
+        server = Server()
+        self.server = server
+        await server.init()
+        users_file = self.state_dir / "users.toml"
+        created = ensure_users(users_file)
+        if created:
+            print(f"serve-800xa: created {users_file} with random passwords; they are in {created}",
+                  file=sys.stderr)
+        server.iserver.user_manager = PlantUserManager(load_users(users_file))
+        server.iserver.attribute_service = PlantAttributeService(server.iserver.aspace, self)
+        server.set_endpoint(self.endpoint)
+        server.set_server_name("MineTwin mock 800xA process simulator")
+        await server.set_application_uri(APPLICATION_URI_SERVER)
+        server.set_identity_tokens([ua.UserNameIdentityToken])
+        pki = pki_paths(self.state_dir)
+        if await ensure_certificate(pki["key"], pki["cert"], APPLICATION_URI_SERVER, client=False):
+            print(f"serve-800xa: generated a self-signed server certificate {pki['cert']}",
+                  file=sys.stderr)
+        pki["trusted"].mkdir(parents=True, exist_ok=True)
+        await server.load_certificate(str(pki["cert"]))
+        await server.load_private_key(str(pki["key"]))
+        server.set_certificate_validator(TrustListValidator(pki["trusted"]))
+        self.idx = await server.register_namespace(self.uri)
+        await self._build_address_space()
+        policies = list(SECURE_POLICIES)
+        if self.insecure:
+            policies.insert(0, ua.SecurityPolicyType.NoSecurity)
+            banner = "!" * 72
+            print(f"{banner}\nWARNING: --insecure: the None security endpoint is ON; messages are "
+                  f"neither signed nor encrypted.\nLocal development only.\n{banner}", file=sys.stderr)
+        server.set_security_policy(policies, permission_ruleset=PlantPermissions(self._methods_by_role))
+        await server.start()
+        await self.publish()
+
+    async def _build_address_space(self) -> None:
+        s, idx, nid = self.server, self.idx, self.nid
+        objects = s.nodes.objects
+        p = self.process
+        plant = await objects.add_object(nid("Plant"), ua.QualifiedName("Plant", idx))
+        self.plant_node = plant
+
+        async def var(parent, name, value, vtype, writable=None, description=""):
+            node = await parent.add_variable(nid(name), ua.QualifiedName(name.split(".")[-1], idx),
+                                             ua.Variant(value, vtype))
+            if description:
+                await node.write_attribute(ua.AttributeIds.Description,
+                                           ua.DataValue(ua.LocalizedText(description)))
+            if writable is not None:
+                await node.set_writable()
+                self.writable[node.nodeid] = writable
+            return node
+
+        D, U, I, S, B = (ua.VariantType.Double, ua.VariantType.UInt64, ua.VariantType.Int32,
+                         ua.VariantType.String, ua.VariantType.Boolean)
+        await var(plant, "Plant.SimulationTime", 0.0, D, description="simulation time [s]")
+        await var(plant, "Plant.Lockstep", self.lockstep, B)
+        self._advance_node = await plant.add_method(
+            nid("Plant.AdvanceTime"), ua.QualifiedName("AdvanceTime", idx), self._call_advance,
+            [_arg("seconds", ua.ObjectIds.Double, "simulation seconds to advance")],
+            [_arg("simulation_time", ua.ObjectIds.Double, "new simulation time [s]")])
+
+        cv101 = await plant.add_object(nid("Plant.CV101"), ua.QualifiedName("CV101", idx))
+        await var(cv101, "Plant.CV101.BeltSpeed", p.cv101.speed_m_s, D,
+                  Writable(("operator",), lambda v: p.set_belt_speed("cv101", v)), "belt speed [m/s]")
+        await var(cv101, "Plant.CV101.BinLength", p.cv101.bin_length_m, D, description="[m]")
+        for name, vtype in (("BinTrackingIds", U), ("BinMasses", D), ("BinGrades", D),
+                            ("BinHardness", D), ("BinSources", I), ("BinPositions", D)):
+            await var(cv101, f"Plant.CV101.{name}", [], vtype)
+        await var(cv101, "Plant.CV101.Mass", 0.0, D, description="mass on the belt [kg]")
+
+        sp = await plant.add_object(nid("Plant.SP201"), ua.QualifiedName("SP201", idx))
+        self.sp201_node = sp
+        await var(sp, "Plant.SP201.DischargeRateSetpoint", p.discharge_rate_setpoint, D,
+                  Writable(("operator",), p.set_discharge_rate), "feeder setpoint [kg/s], 0..2000")
+        await var(sp, "Plant.SP201.HeldMass", 0.0, D,
+                  Writable(("surrogate",), lambda v: _check("HeldMass", v, 0.0, math.inf)),
+                  "mass held, reported by the stockpile [kg]")
+        await var(sp, "Plant.SP201.AverageGrade", 0.0, D,
+                  Writable(("surrogate",), lambda v: _check("AverageGrade", v, 0.0, 1.0)),
+                  "average grade reported by the stockpile [-]")
+        await var(sp, "Plant.SP201.Heartbeat", 0, U,
+                  Writable(("surrogate",), lambda v: _check("Heartbeat", v, 0, 2**64 - 1),
+                           ua.VariantType.UInt64), "stockpile heartbeat counter")
+        await var(sp, "Plant.SP201.SurrogateTime", 0.0, D,
+                  Writable(("surrogate",), self._surrogate_time),
+                  "the stockpile's simulation time [s]")
+        await var(sp, "Plant.SP201.LastRefusal", "", S, description="last refused write or call")
+        inbound = await sp.add_object(nid("Plant.SP201.Inbound"), ua.QualifiedName("Inbound", idx))
+        await var(inbound, "Plant.SP201.Inbound.LastSequence", 0, U)
+        await var(inbound, "Plant.SP201.Inbound.AcknowledgedSequence", 0, U)
+        for name, vtype in (("PendingSequence", U), ("PendingTrackingIds", U), ("PendingMasses", D),
+                            ("PendingGrades", D), ("PendingHardness", D), ("PendingSources", I),
+                            ("PendingTimes", D)):
+            await var(inbound, f"Plant.SP201.Inbound.{name}", [], vtype)
+        self._ack_node = await inbound.add_method(
+            nid("Plant.SP201.Inbound.Acknowledge"), ua.QualifiedName("Acknowledge", idx),
+            self._call_acknowledge,
+            [_arg("sequence", ua.ObjectIds.UInt64, "highest sequence number applied")],
+            [_arg("message", ua.ObjectIds.String, "result")])
+        outbound = await sp.add_object(nid("Plant.SP201.Outbound"), ua.QualifiedName("Outbound", idx))
+        await var(outbound, "Plant.SP201.Outbound.LastSequence", 0, U)
+        self._report_node = await outbound.add_method(
+            nid("Plant.SP201.Outbound.ReportOutflow"), ua.QualifiedName("ReportOutflow", idx),
+            self._call_report,
+            [_arg("sequence", ua.ObjectIds.UInt64, "outflow report number, 1, 2, ..."),
+             _arg("tracking_ids", ua.ObjectIds.UInt64, "tracking ids", array=True),
+             _arg("masses", ua.ObjectIds.Double, "mass [kg] per tracking id", array=True),
+             _arg("grades", ua.ObjectIds.Double, "grade [-] per tracking id", array=True)],
+            [_arg("message", ua.ObjectIds.String, "applied / already applied / refusal")])
+
+        cv301 = await plant.add_object(nid("Plant.CV301"), ua.QualifiedName("CV301", idx))
+        await var(cv301, "Plant.CV301.BeltSpeed", p.cv301.speed_m_s, D,
+                  Writable(("operator",), lambda v: p.set_belt_speed("cv301", v)), "belt speed [m/s]")
+        await var(cv301, "Plant.CV301.BinLength", p.cv301.bin_length_m, D, description="[m]")
+        for name, vtype in (("BinMasses", D), ("BinGrades", D), ("BinPositions", D),
+                            ("ContentsBin", I), ("ContentsTrackingIds", U), ("ContentsMasses", D)):
+            await var(cv301, f"Plant.CV301.{name}", [], vtype)
+        await var(cv301, "Plant.CV301.Mass", 0.0, D, description="mass on the belt [kg]")
+        await var(cv301, "Plant.CV301.Grade", 0.0, D, description="average grade on the belt [-]")
+        await var(cv301, "Plant.CV301.DeliveredMass", 0.0, D, description="[kg]")
+
+        etype = await s.nodes.base_event_type.add_object_type(
+            nid("BinDischargedEventType"), ua.QualifiedName("BinDischargedEventType", idx))
+        for name, vtype in EVENT_FIELDS:
+            await etype.add_property(nid(f"BinDischargedEventType.{name}"),
+                                     ua.QualifiedName(name, idx), ua.get_default_value(vtype),
+                                     varianttype=vtype)
+        self.event_generator = await s.get_event_generator(etype, sp)
+        self._methods_by_role = {
+            "surrogate": {self._ack_node.nodeid, self._report_node.nodeid, self._advance_node.nodeid},
+            "operator": set(), "viewer": set()}
+
+    # ---------------------------------------------------------------- values
+    @staticmethod
+    def coerce(value, vtype):
+        return int(value) if vtype == ua.VariantType.UInt64 else float(value)
+
+    def _set(self, name: str, value, vtype) -> None:
+        self.server.iserver.aspace.set_attribute_value(
+            self.nid(name), ua.AttributeIds.Value, ua.DataValue(ua.Variant(value, vtype)))
+
+    async def _write(self, name: str, value, vtype) -> None:
+        await self.server.write_attribute_value(self.nid(name), ua.DataValue(ua.Variant(value, vtype)))
+
+    async def publish(self) -> None:
+        """Copy the process state into the address space."""
+        p, D, U, I = (self.process, ua.VariantType.Double, ua.VariantType.UInt64,
+                      ua.VariantType.Int32)
+        w = self._write
+        await w("Plant.SimulationTime", p.time, D)
+        b = p.cv101
+        await w("Plant.CV101.BinTrackingIds", b.tracking_id.tolist(), U)
+        await w("Plant.CV101.BinMasses", b.mass.tolist(), D)
+        await w("Plant.CV101.BinGrades", b.grade.tolist(), D)
+        await w("Plant.CV101.BinHardness", b.hardness.tolist(), D)
+        await w("Plant.CV101.BinSources", b.source.tolist(), I)
+        await w("Plant.CV101.BinPositions", b.positions().tolist(), D)
+        await w("Plant.CV101.Mass", float(b.mass.sum()), D)
+        await self._publish_inbound()
+        c = p.cv301
+        await w("Plant.CV301.BinMasses", c.mass.tolist(), D)
+        await w("Plant.CV301.BinGrades", c.grade.tolist(), D)
+        await w("Plant.CV301.BinPositions", c.positions().tolist(), D)
+        slots, tids, masses = [], [], []
+        for slot, contents in enumerate(p.cv301_contents):
+            for tid, m in contents.items():
+                slots.append(slot), tids.append(tid), masses.append(m)
+        await w("Plant.CV301.ContentsBin", slots, I)
+        await w("Plant.CV301.ContentsTrackingIds", tids, U)
+        await w("Plant.CV301.ContentsMasses", masses, D)
+        total = float(c.mass.sum())
+        await w("Plant.CV301.Mass", total, D)
+        await w("Plant.CV301.Grade", float(c.mass @ c.grade / total) if total > 0 else 0.0, D)
+        await w("Plant.CV301.DeliveredMass", p.delivered_mass_kg, D)
+
+    async def _publish_inbound(self) -> None:
+        p, D, U, I = (self.process, ua.VariantType.Double, ua.VariantType.UInt64,
+                      ua.VariantType.Int32)
+        pend = p.pending_arrays()
+        w = self._write
+        await w("Plant.SP201.Inbound.PendingSequence", pend["sequence"].tolist(), U)
+        await w("Plant.SP201.Inbound.PendingTrackingIds", pend["tracking_id"].tolist(), U)
+        await w("Plant.SP201.Inbound.PendingMasses", pend["mass"].tolist(), D)
+        await w("Plant.SP201.Inbound.PendingGrades", pend["grade"].tolist(), D)
+        await w("Plant.SP201.Inbound.PendingHardness", pend["hardness"].tolist(), D)
+        await w("Plant.SP201.Inbound.PendingSources", pend["source"].tolist(), I)
+        await w("Plant.SP201.Inbound.PendingTimes", pend["time"].tolist(), D)
+        await w("Plant.SP201.Inbound.LastSequence", p.last_sequence, U)
+        await w("Plant.SP201.Inbound.AcknowledgedSequence", p.acknowledged_sequence, U)
+        await w("Plant.SP201.Outbound.LastSequence", p.outbound_sequence, U)
+
+    def refuse(self, status: str, message: str) -> None:
+        self.refusals.count += 1
+        self.refusals.last = f"{status}: {message}"
+        self.refusals.by_status[status] = self.refusals.by_status.get(status, 0) + 1
+        self._set("Plant.SP201.LastRefusal", self.refusals.last, ua.VariantType.String)
+        log.warning("refused: %s", self.refusals.last)
+
+    def _surrogate_time(self, value) -> None:
+        value = _check("SurrogateTime", value, 0.0, math.inf)
+        self.surrogate_time = value
+        self.max_surrogate_lag_s = max(self.max_surrogate_lag_s, self.process.time - value)
+
+    # --------------------------------------------------------------- advance
+    async def advance(self, dt: float) -> None:
+        async with self._lock:
+            records = self.process.advance(dt)
+            await self.publish()
+        ev = self.event_generator
+        for r in records:
+            ev.event.Sequence = ua.Variant(r.sequence, ua.VariantType.UInt64)
+            ev.event.TrackingId = ua.Variant(r.tracking_id, ua.VariantType.UInt64)
+            ev.event.Mass = r.mass_kg
+            ev.event.Grade = r.grade
+            ev.event.Hardness = r.hardness
+            ev.event.Source = ua.Variant(r.source, ua.VariantType.Int32)
+            ev.event.DischargeTime = r.time_s
+            await ev.trigger(message=f"bin {r.tracking_id} discharged onto SP201 (seq {r.sequence})")
+
+    async def run(self) -> None:
+        """Serve until ``stop()``; advance in real time unless in lockstep."""
+        tick = float(self.config["server"]["tick_s"])
+        last = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                await asyncio.wait_for(self._stop.wait(), tick)
+            except TimeoutError:
+                pass
+            now = time.monotonic()
+            if not (self.lockstep or self.paused):
+                await self.advance((now - last) * self.speed)
+            last = now
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def pause(self) -> None:
+        """Freeze the clock (SIGUSR1), so a run can be drained and audited."""
+        self.paused = True
+
+    async def shutdown(self) -> None:
+        await self.server.stop()
+
+    def ledger(self) -> dict:
+        out = self.process.ledger()
+        out.update({"paused": self.paused, "max_surrogate_lag_s": self.max_surrogate_lag_s,
+                    "surrogate_time_s": self.surrogate_time,
+                    "refusals": self.refusals.count, "refusals_by_status": self.refusals.by_status,
+                    "speed": self.speed, "lockstep": self.lockstep})
+        return out
+
+    # --------------------------------------------------------------- methods
+    def _refused_call(self, exc: ExchangeRefused) -> ua.CallMethodResult:
+        self.refuse(exc.status, exc.message)
+        result = ua.CallMethodResult()
+        result.StatusCode = ua.StatusCode(getattr(ua.StatusCodes, exc.status))
+        result.OutputArguments = [ua.Variant(exc.message, ua.VariantType.String)]
+        return result
+
+    async def _call_acknowledge(self, parent, sequence):
+        try:
+            seq = _as_int("sequence", sequence)
+            async with self._lock:
+                acked = self.process.acknowledge(seq)
+                await self._publish_inbound()
+        except ExchangeRefused as exc:
+            return self._refused_call(exc)
+        return [ua.Variant(f"acknowledged up to {acked}", ua.VariantType.String)]
+
+    async def _call_report(self, parent, sequence, tracking_ids, masses, grades):
+        try:
+            seq = _as_int("sequence", sequence)
+            arrays = []
+            for name, var in (("tracking_ids", tracking_ids), ("masses", masses), ("grades", grades)):
+                value = var.Value if isinstance(var, ua.Variant) else var
+                if value is None:
+                    value = []
+                if not isinstance(value, (list, tuple)):
+                    raise ExchangeRefused("BadInvalidArgument", name, "an array", f"got {value!r}")
+                arrays.append(value)
+            try:
+                tids = np.array(arrays[0], dtype=np.uint64)
+            except (OverflowError, ValueError, TypeError):
+                raise ExchangeRefused("BadInvalidArgument", "tracking_ids",
+                                      "unsigned 64-bit integers") from None
+            async with self._lock:
+                message = self.process.report_outflow(seq, tids, np.array(arrays[1], dtype=float),
+                                                      np.array(arrays[2], dtype=float))
+                await self._publish_inbound()
+        except ExchangeRefused as exc:
+            return self._refused_call(exc)
+        except (TypeError, ValueError) as exc:
+            return self._refused_call(ExchangeRefused("BadInvalidArgument", "arguments",
+                                                      "(UInt64, UInt64[], Double[], Double[])",
+                                                      str(exc)))
+        return [ua.Variant(message, ua.VariantType.String)]
+
+    async def _call_advance(self, parent, seconds):
+        try:
+            value = seconds.Value if isinstance(seconds, ua.Variant) else seconds
+            if not self.lockstep:
+                raise ExchangeRefused("BadInvalidState", "AdvanceTime",
+                                      "called only on a server started with --lockstep")
+            dt = _check("seconds", value, 0.0, 3600.0)
+            await self.advance(dt)
+        except ExchangeRefused as exc:
+            return self._refused_call(exc)
+        return [ua.Variant(self.process.time, ua.VariantType.Double)]
+
+
+def _arg(name: str, datatype: int, description: str, array: bool = False) -> ua.Argument:
+    arg = ua.Argument()
+    arg.Name = name
+    arg.DataType = ua.NodeId(datatype)
+    arg.ValueRank = 1 if array else -1
+    arg.ArrayDimensions = [0] if array else []
+    arg.Description = ua.LocalizedText(description)
+    return arg
+
+
+def _check(field_name: str, value, low: float, high: float) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ExchangeRefused("BadTypeMismatch", field_name, "a number", f"got {value!r}") from None
+    if not math.isfinite(number) or number < low or number > high:
+        raise ExchangeRefused("BadOutOfRange", field_name, f"finite and in [{low:g}, {high:g}]",
+                              f"got {value!r}")
+    return number
+
+
+def _as_int(field_name: str, variant) -> int:
+    value = variant.Value if isinstance(variant, ua.Variant) else variant
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ExchangeRefused("BadInvalidArgument", field_name, "an unsigned integer",
+                              f"got {value!r}")
+    if value < 0:
+        raise ExchangeRefused("BadOutOfRange", field_name, ">= 0", f"got {value}")
+    return int(value)
+
+
+def _write_json(path: Path, data: dict) -> None:
+    tmp = Path(path).with_suffix(".tmp")
+    tmp.write_text(json.dumps(data))
+    tmp.replace(path)
+
+
+async def serve(config: dict, *, speed: float = 1.0, insecure: bool = False,
+                lockstep: bool = False, ledger_path: Path | None = None,
+                ready_file: Path | None = None) -> int:
+    """Run the server until SIGINT/SIGTERM; write the ledger JSON at the end."""
+    plant = PlantServer(config, speed=speed, insecure=insecure, lockstep=lockstep)
+    await plant.start()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, plant.stop)
+
+    def pause_and_write_ledger():
+        plant.pause()
+        if ledger_path:
+            _write_json(ledger_path, plant.ledger())
+        print(f"serve-800xa: clock paused at {plant.process.time:.3f} s", file=sys.stderr,
+              flush=True)
+
+    loop.add_signal_handler(signal.SIGUSR1, pause_and_write_ledger)
+    mode = "lockstep" if lockstep else f"speed x{speed:g}"
+    print(f"serve-800xa: listening on {plant.endpoint} ({mode})", file=sys.stderr, flush=True)
+    if ready_file:
+        Path(ready_file).write_text(plant.endpoint)
+    try:
+        await plant.run()
+    finally:
+        if ledger_path:
+            _write_json(ledger_path, plant.ledger())
+        await plant.shutdown()
+    print("serve-800xa: stopped", file=sys.stderr)
+    return 0

@@ -1,0 +1,414 @@
+"""The stockpile surrogate as an OPC UA client of the (mock) 800xA plant.
+
+Source: paper section "Integration test" (exchange of bins at the discharge
+point, the discharge-rate control signal, and macro-tracking messages for the
+outgoing conveyor); DESIGN.md section 6 ("the exchange loses nothing").
+
+One *exchange cycle* (every ``cycle_s`` wall seconds, or one
+``Plant.AdvanceTime(period_s)`` call in lockstep):
+
+1. read SimulationTime, the discharge-rate setpoint and the last inbound
+   sequence number; if records are missing (a gap, or a number higher than
+   any seen), read the pending list;
+2. step the asset up to the server's time in sub-steps of at most ``dt_s``,
+   applying inbound records in sequence order at their discharge times;
+   the outflow of the cycle becomes one outbound report with the next
+   outbound sequence number, put in the *outbox*;
+3. write the checkpoint (asset, last applied inbound number, outbox)
+   atomically;
+4. send the outbox (``ReportOutflow``; a repeat is answered "already
+   applied" and dropped), then acknowledge the last applied inbound number;
+5. write HeldMass, AverageGrade, Heartbeat and SurrogateTime.
+
+Exactly once: an inbound record is acknowledged only after a checkpoint that
+contains its effect, and an outbound report is sent only after a checkpoint
+that contains it. After a crash the client restarts from the checkpoint:
+records applied after it are still pending on the server and are applied
+again from the restored state (once), and reports sent after it are
+answered "already applied". After a lost connection the client reconnects
+and resynchronises from the pending list.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import os
+import pickle
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from cosim.errors import ValidationError
+from surrogate.stockpile import StockpileAsset
+
+log = logging.getLogger("surrogate.client")
+
+CHECKPOINT_VERSION = 1
+
+
+@dataclass
+class ClientOptions:
+    """Options of the stockpile client (times in seconds of simulation unless wall)."""
+
+    server_url: str
+    username: str = "surrogate"
+    password: str = ""
+    certificate: Path | None = None
+    private_key: Path | None = None
+    server_certificate: Path | None = None
+    insecure: bool = False
+    model: str = "fifo"
+    seed: int = 0
+    particle_mass_kg: float = 100.0
+    dt_s: float = 0.5
+    cycle_s: float = 0.1
+    lockstep: bool = False
+    period_s: float = 1.0
+    duration_s: float | None = None
+    checkpoint: Path | None = None
+    summary: Path | None = None
+    node_map: Path | None = None
+    rest_port: int | None = None
+    rest_port_file: Path | None = None
+    reconnect_s: float = 1.0
+    timeout_s: float = 4.0
+
+
+@dataclass
+class ClientState:
+    """Everything the checkpoint holds."""
+
+    asset: StockpileAsset
+    last_applied: int = 0
+    outflow_sequence: int = 0
+    outbox: list = field(default_factory=list)
+    heartbeat: int = 0
+    version: int = CHECKPOINT_VERSION
+
+
+class StockpileClient:
+    """Runs the stockpile asset against the plant server (see module docstring)."""
+
+    def __init__(self, options: ClientOptions):
+        self.o = options
+        self.state = self._restore() or ClientState(
+            StockpileAsset(options.model, seed=options.seed,
+                           particle_mass_kg=options.particle_mass_kg))
+        self.inbox: dict[int, dict] = {}
+        self.known_sequence = self.state.last_applied
+        self.need_sync = True
+        self.acked = -1
+        self.step_times_ms: list[float] = []
+        self.max_lag_s = 0.0
+        self.reconnects = 0
+        self._stop = asyncio.Event()
+        self.nodes: dict = {}
+
+    @property
+    def asset(self) -> StockpileAsset:
+        return self.state.asset
+
+    # ----------------------------------------------------------- checkpoint
+    def _restore(self) -> ClientState | None:
+        path = self.o.checkpoint
+        if path is None or not Path(path).exists():
+            return None
+        with open(path, "rb") as handle:
+            state = pickle.load(handle)  # our own file, written by _checkpoint
+        if getattr(state, "version", None) != CHECKPOINT_VERSION:
+            raise ValidationError("checkpoint", f"a version {CHECKPOINT_VERSION} checkpoint",
+                                  f"{path} has another version")
+        if state.asset.model_name != self.o.model:
+            raise ValidationError("model", f"{state.asset.model_name!r} (the checkpoint's model)",
+                                  f"got {self.o.model!r}")
+        print(f"stockpile: resumed from {path} at t={state.asset.time:.3f} s, "
+              f"last applied inbound {state.last_applied}, {len(state.outbox)} report(s) unsent",
+              file=sys.stderr, flush=True)
+        return state
+
+    def _checkpoint(self) -> None:
+        path = self.o.checkpoint
+        if path is None:
+            return
+        tmp = Path(f"{path}.tmp")
+        with open(tmp, "wb") as handle:
+            pickle.dump(self.state, handle, protocol=pickle.HIGHEST_PROTOCOL)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+
+    # ------------------------------------------------------------ exchange
+    def _accept_records(self, records: list[dict]) -> None:
+        for r in records:
+            seq = r["sequence"]
+            if seq > self.state.last_applied:
+                self.inbox.setdefault(seq, r)
+            self.known_sequence = max(self.known_sequence, seq)
+
+    def advance_to(self, target_time: float) -> dict | None:
+        """Step the asset to ``target_time`` applying inbound records in order;
+        return this cycle's outflow report (or None)."""
+        asset = self.asset
+        started = time.perf_counter()
+        outflow: dict[int, list[float]] = {}
+
+        def step_to(t_end: float) -> None:
+            while asset.time < t_end - 1e-12:
+                out = asset.step(min(self.o.dt_s, t_end - asset.time))
+                for tid, m, g in zip(out["tracking_ids"].tolist(), out["masses"].tolist(),
+                                     out["grades"].tolist()):
+                    acc = outflow.setdefault(tid, [0.0, 0.0])
+                    acc[0] += m
+                    acc[1] += m * g
+
+        while True:
+            nxt = self.inbox.get(self.state.last_applied + 1)
+            if nxt is None:
+                if any(s > self.state.last_applied for s in self.inbox):
+                    self.need_sync = True  # a gap: read the pending list next cycle
+                break
+            if nxt["time"] > target_time:
+                break
+            step_to(nxt["time"])
+            asset.receive_bin(nxt["tracking_id"], nxt["mass"], nxt["grade"], nxt["hardness"],
+                              nxt["source"])
+            del self.inbox[nxt["sequence"]]
+            self.state.last_applied = nxt["sequence"]
+        step_to(target_time)
+        self.step_times_ms.append((time.perf_counter() - started) * 1e3)
+        if not outflow:
+            return None
+        self.state.outflow_sequence += 1
+        tids = sorted(outflow)
+        masses = [outflow[t][0] for t in tids]
+        grades = [min(max(outflow[t][1] / outflow[t][0], 0.0), 1.0) for t in tids]
+        report = {"sequence": self.state.outflow_sequence, "tracking_ids": tids,
+                  "masses": masses, "grades": grades}
+        self.state.outbox.append(report)
+        return report
+
+    # ------------------------------------------------------------- OPC UA
+    async def _connect(self):
+        from asyncua import Client, ua
+        from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
+        from opcua_server.security import APPLICATION_URI_CLIENT
+
+        client = Client(self.o.server_url, timeout=self.o.timeout_s)
+        client.application_uri = APPLICATION_URI_CLIENT
+        client.set_user(self.o.username)
+        client.set_password(self.o.password)
+        if not self.o.insecure:
+            if not (self.o.certificate and self.o.private_key):
+                raise ValidationError("certificate", "a client certificate and key (or --insecure)")
+            await client.set_security(
+                SecurityPolicyBasic256Sha256, str(self.o.certificate), str(self.o.private_key),
+                server_certificate=str(self.o.server_certificate) if self.o.server_certificate
+                else None, mode=ua.MessageSecurityMode.SignAndEncrypt)
+        await client.connect()
+        return client
+
+    async def _resolve(self, client) -> None:
+        from asyncua import ua
+
+        from opcua_server.config import load_nodemap
+
+        self.nodes = {}
+        namespaces = await client.get_namespace_array()
+        for name, text in load_nodemap(self.o.node_map).items():
+            if text.startswith("nsu="):
+                uri, _, rest = text[4:].partition(";")
+                if uri not in namespaces:
+                    raise ValidationError("node_map", f"namespaces the server has ({namespaces})",
+                                          f"{name}: unknown namespace {uri!r}")
+                text = f"ns={namespaces.index(uri)};{rest}"
+            self.nodes[name] = client.get_node(ua.NodeId.from_string(text))
+
+    async def _sync_pending(self) -> None:
+        n = self.nodes
+        names = ("pending_sequence", "pending_tracking_ids", "pending_masses", "pending_grades",
+                 "pending_hardness", "pending_sources", "pending_times")
+        values = await self.client.read_values([n[k] for k in names])
+        seq, tid, mass, grade, hard, src, t = (v or [] for v in values)
+        self._accept_records([
+            {"sequence": int(seq[k]), "tracking_id": int(tid[k]), "mass": float(mass[k]),
+             "grade": float(grade[k]), "hardness": float(hard[k]), "source": int(src[k]),
+             "time": float(t[k])} for k in range(len(seq))])
+        self.need_sync = False
+
+    def event_notification(self, event) -> None:
+        """asyncua subscription callback: one BinDischargedEvent."""
+        try:
+            self._accept_records([{
+                "sequence": int(event.Sequence), "tracking_id": int(event.TrackingId),
+                "mass": float(event.Mass), "grade": float(event.Grade),
+                "hardness": float(event.Hardness), "source": int(event.Source),
+                "time": float(event.DischargeTime)}])
+        except (AttributeError, TypeError, ValueError):
+            self.need_sync = True  # unreadable event: fall back on the pending list
+
+    def status_change_notification(self, status) -> None:
+        self.need_sync = True
+
+    async def _send(self) -> None:
+        from asyncua import ua
+
+        for report in list(self.state.outbox):
+            message = await self.nodes["outbound"].call_method(
+                self.nodes["report_outflow"],
+                ua.Variant(report["sequence"], ua.VariantType.UInt64),
+                ua.Variant(report["tracking_ids"], ua.VariantType.UInt64),
+                ua.Variant(report["masses"], ua.VariantType.Double),
+                ua.Variant(report["grades"], ua.VariantType.Double))
+            log.debug("report %d: %s", report["sequence"], message)
+            self.state.outbox.remove(report)
+        if self.state.last_applied != self.acked:
+            await self.nodes["sp201"].call_method(
+                self.nodes["acknowledge"],
+                ua.Variant(self.state.last_applied, ua.VariantType.UInt64))
+            self.acked = self.state.last_applied
+
+    async def _report_values(self) -> None:
+        from asyncua import ua
+
+        totals = self.asset.totals()
+        grade = totals["grade"] if math.isfinite(totals["grade"]) else 0.0
+        self.state.heartbeat += 1
+        n = self.nodes
+        await self.client.write_values(
+            [n["held_mass"], n["average_grade"], n["heartbeat"], n["surrogate_time"]],
+            [ua.DataValue(ua.Variant(totals["held_mass_kg"], ua.VariantType.Double)),
+             ua.DataValue(ua.Variant(grade, ua.VariantType.Double)),
+             ua.DataValue(ua.Variant(self.state.heartbeat, ua.VariantType.UInt64)),
+             ua.DataValue(ua.Variant(self.asset.time, ua.VariantType.Double))])
+
+    async def cycle(self) -> None:
+        """One exchange cycle (see the module docstring)."""
+        from asyncua import ua
+
+        n = self.nodes
+        if self.o.lockstep:
+            await n["plant"].call_method(n["advance_time"],
+                                         ua.Variant(float(self.o.period_s), ua.VariantType.Double))
+            self.need_sync = True  # deterministic: take the records from the pending list
+        server_time, setpoint, last_seq = await self.client.read_values(
+            [n["simulation_time"], n["discharge_rate_setpoint"], n["inbound_last_sequence"]])
+        if self.need_sync or int(last_seq) > self.known_sequence:
+            await self._sync_pending()
+        self.asset.set_discharge_rate(float(setpoint))
+        self.advance_to(float(server_time))
+        self._checkpoint()
+        await self._send()
+        await self._report_values()
+        server_now = await n["simulation_time"].read_value()
+        self.max_lag_s = max(self.max_lag_s, float(server_now) - self.asset.time)
+
+    async def _session(self) -> None:
+        client = await self._connect()
+        self.client = client
+        try:
+            await self._resolve(client)
+            subscription = await client.create_subscription(50, self)
+            await subscription.subscribe_events(self.nodes["sp201"],
+                                                self.nodes["bin_discharged_event_type"],
+                                                queuesize=100_000)
+            self.need_sync = True
+            self.acked = -1
+            while not self._stop.is_set():
+                started = time.monotonic()
+                await self.cycle()
+                if self._done():
+                    self._stop.set()
+                    break
+                if not self.o.lockstep:
+                    remaining = self.o.cycle_s - (time.monotonic() - started)
+                    if remaining > 0:
+                        try:
+                            await asyncio.wait_for(self._stop.wait(), remaining)
+                        except TimeoutError:
+                            pass
+        finally:
+            try:
+                await asyncio.wait_for(client.disconnect(), 2.0)
+            except Exception:  # the connection may already be gone
+                pass
+
+    def _done(self) -> bool:
+        return self.o.duration_s is not None and self.asset.time >= self.o.duration_s - 1e-9
+
+    async def run(self) -> int:
+        """Run until stopped (or ``duration_s``), reconnecting after failures."""
+        from asyncua import ua
+
+        rest = None
+        if self.o.rest_port is not None:
+            from surrogate.rest import start_rest
+
+            rest, port = await start_rest(self.asset, "127.0.0.1", self.o.rest_port)
+            print(f"stockpile: REST on http://127.0.0.1:{port}/", file=sys.stderr, flush=True)
+            if self.o.rest_port_file:
+                Path(self.o.rest_port_file).write_text(str(port))
+        try:
+            while not self._stop.is_set():
+                try:
+                    await self._session()
+                except ua.UaStatusCodeError as exc:
+                    if exc.code in (ua.StatusCodes.BadUserAccessDenied,
+                                    ua.StatusCodes.BadIdentityTokenRejected,
+                                    ua.StatusCodes.BadCertificateUntrusted):
+                        print(f"stockpile: refused by the server: {exc}", file=sys.stderr)
+                        return 1
+                    self._lost(exc)
+                except (OSError, asyncio.TimeoutError, ConnectionError) as exc:
+                    self._lost(exc)
+                if not self._stop.is_set():
+                    try:
+                        await asyncio.wait_for(self._stop.wait(), self.o.reconnect_s)
+                    except TimeoutError:
+                        pass
+        finally:
+            self.write_summary()
+            if rest is not None:
+                await rest.cleanup()
+        return 0
+
+    def _lost(self, exc: BaseException) -> None:
+        self.reconnects += 1
+        print(f"stockpile: connection lost ({type(exc).__name__}: {exc}); reconnecting",
+              file=sys.stderr, flush=True)
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def write_summary(self) -> dict:
+        """Final state for audits: held mass per tracking id, counters, timing."""
+        times = np.array(self.step_times_ms) if self.step_times_ms else np.zeros(1)
+        summary = {
+            "time_s": self.asset.time, "model": self.asset.model_name,
+            "last_applied": self.state.last_applied,
+            "outflow_sequence": self.state.outflow_sequence,
+            "outbox": len(self.state.outbox),
+            "held_mass_kg": float(self.asset.particles.mass.sum()),
+            "held": {str(k): v for k, v in self.asset.held_by_tracking_id().items()},
+            "step_time_p99_ms": float(np.percentile(times, 99)),
+            "step_time_mean_ms": float(times.mean()),
+            "cycles": len(self.step_times_ms), "max_lag_s": self.max_lag_s,
+            "reconnects": self.reconnects, "history": self.asset.history(),
+        }
+        if self.o.summary:
+            tmp = Path(f"{self.o.summary}.tmp")
+            tmp.write_text(json.dumps(summary, default=_json_default))
+            os.replace(tmp, self.o.summary)
+        return summary
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(type(value).__name__)
