@@ -1,0 +1,59 @@
+"""The minetwin pytest plugin as a user sees it: test files run by pytester in a subprocess."""
+
+import pytest
+
+pytest_plugins = ["pytester"]
+
+USER_TEST = '''
+import numpy as np
+import pandas as pd
+
+SCALE = {scale}
+
+def test_power_matches_reference(reference_check):
+    t = np.arange(0.0, 60.0, 0.5)
+    frame = pd.DataFrame({{"crusher.power": SCALE * (1500 + 300 * np.sin(t / 5)),
+                          "mill.power": 2.0e5 + 0 * t}}, index=pd.Index(t, name="time"))
+    reference_check(frame, "power_ref.csv", scenario="scenario.toml")
+'''
+
+SCENARIO = '''
+[reference]
+signals = ["crusher.power", "mill.power"]
+rtol = 0.02
+time_shift = 1.0
+'''
+
+
+def _user_folder(pytester, scale):
+    pytester.makefile(".toml", scenario=SCENARIO)
+    pytester.makepyfile(test_user=USER_TEST.format(scale=scale))
+
+
+def test_plugin_is_registered_and_lists_its_options(pytester):
+    result = pytester.runpytest("--help")
+    result.stdout.fnmatch_lines(["*--minetwin-record*", "*--minetwin-plots=DIR*"])
+    header = pytester.runpytest("--co", "-q")
+    header.stdout.no_fnmatch_line("*PluginValidationError*")
+
+
+def test_reference_check_records_then_passes_then_catches_a_change(pytester):
+    _user_folder(pytester, scale=1.0)
+    pytester.runpytest("--minetwin-record").assert_outcomes(passed=1)
+    csv = (pytester.path / "power_ref.csv").read_text().splitlines()
+    assert csv[0] == "time,crusher.power,mill.power" and len(csv) == 121
+    pytester.runpytest().assert_outcomes(passed=1)
+
+    _user_folder(pytester, scale=1.05)                 # 5 % more power: outside 2 %
+    plots = pytester.path / "plots"
+    result = pytester.runpytest(f"--minetwin-plots={plots}")
+    result.assert_outcomes(failed=1)
+    result.stdout.fnmatch_lines([
+        "*result differs from the reference*power_ref.csv*",
+        "*signal*worst deviation*at t [[]s]*band there*outside*result*",
+        "*crusher.power*FAIL*",
+        "*mill.power*+0*pass*",
+        "*1 of 2 signal(s) outside their band*",
+    ])
+    overlays = list(plots.rglob("*.png"))
+    assert [p.name for p in overlays] == ["crusher.power.png"]
