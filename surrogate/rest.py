@@ -49,6 +49,9 @@ TOTALS_KEYS = ("time_s", "held_mass_kg", "grade", "hardness", "d80_m", "particle
 FIELD_NAMES = ("mass", "grade", "hardness", "residence_time", "velocity")
 """Spatial fields ``/fields`` can return (``velocity`` gives ``vx`` and ``vy``)."""
 
+FIELD_PATTERN = "^({0})(,({0}))*$".format("|".join(FIELD_NAMES))
+"""What the ``field`` parameter of ``/fields`` accepts."""
+
 MAX_GRID = 200
 """Largest grid side (cells) of ``/fields``."""
 
@@ -336,9 +339,9 @@ def _feed_with_profile(asset, horizon: float) -> tuple[dict, dict]:
 
 
 def _field_list(raw: str | None) -> list[str]:
-    if raw is None or raw == "":
+    if raw is None:
         return list(FIELD_NAMES)
-    names = [name.strip() for name in raw.split(",")]
+    names = raw.split(",")
     unknown = [name for name in names if name not in FIELD_NAMES]
     if unknown:
         raise ValidationError("field", f"a comma-separated list of {list(FIELD_NAMES)}",
@@ -356,7 +359,9 @@ async def _errors_as_json(request, handler):
     except web.HTTPException as exc:
         if exc.status < 400:
             raise
-        return web.json_response({"error": exc.reason, "field": None}, status=exc.status)
+        allow = {"Allow": exc.headers["Allow"]} if "Allow" in exc.headers else None
+        return web.json_response({"error": exc.reason, "field": None}, status=exc.status,
+                                 headers=allow)
 
 
 async def start_rest(asset, host: str = "127.0.0.1", port: int = 0, lock=None):
@@ -484,7 +489,7 @@ OPENAPI = {
                     "cells along x (default 40)"),
              _param("ny", {"type": "integer", "minimum": 1, "maximum": MAX_GRID},
                     "cells along y (default 20)"),
-             _param("field", {"type": "string"},
+             _param("field", {"type": "string", "pattern": FIELD_PATTERN},
                     f"comma-separated subset of {', '.join(FIELD_NAMES)} (default all)")]),
         "/particles": _get("a page of the particles held, ordered by id", {
             "type": "object",

@@ -32,32 +32,45 @@ async function getJSON(path) {
   }
 }
 
+async function fetchAll() {
+  const totals = await getJSON("totals");
+  if (state.lastTime !== null && totals.time_s < state.lastTime) {
+    state.history = [];  // the stockpile restarted: a new run, new clock
+  }
+  const since = state.history.length ? state.history[state.history.length - 1].time_s : -1e12;
+  const [history, particles, fields, feed] = await Promise.all([
+    getJSON("history?since=" + since),
+    getJSON("particles?limit=" + PARTICLE_LIMIT),
+    getJSON("fields?nx=36&ny=18&field=mass,velocity"),
+    getJSON("feed?horizon=" + FEED_HORIZON_S),
+  ]);
+  return {totals, history, particles, fields, feed};
+}
+
 async function poll() {
+  let data = null;
   try {
-    const totals = await getJSON("totals");
-    if (state.lastTime !== null && totals.time_s < state.lastTime) {
-      state.history = [];  // the stockpile restarted: a new run, new clock
-    }
-    const since = state.history.length ? state.history[state.history.length - 1].time_s : -1e12;
-    const [history, particles, fields, feed] = await Promise.all([
-      getJSON("history?since=" + since),
-      getJSON("particles?limit=" + PARTICLE_LIMIT),
-      getJSON("fields?nx=36&ny=18&field=mass,velocity"),
-      getJSON("feed?horizon=" + FEED_HORIZON_S),
-    ]);
-    state.history = state.history.concat(history.rows).slice(-HISTORY_KEEP);
-    Object.assign(state, {particles, fields, feed, lastTime: totals.time_s});
-    showReachable(true);
-    showTotals(totals);
-    showFeed(feed);
-    drawPile();
-    drawCharts();
-    state.updates += 1;
+    data = await fetchAll();
   } catch (error) {
     showReachable(false, error);
-  } finally {
-    setTimeout(poll, POLL_MS);
   }
+  if (data) {
+    state.history = state.history.concat(data.history.rows).slice(-HISTORY_KEEP);
+    Object.assign(state, {particles: data.particles, fields: data.fields, feed: data.feed,
+                          lastTime: data.totals.time_s});
+    state.updates += 1;
+    showReachable(true);
+    // a drawing fault is a page bug, not an unreachable stockpile: report it
+    try {
+      showTotals(data.totals);
+      showFeed(data.feed);
+      drawPile();
+      drawCharts();
+    } catch (error) {
+      console.error("monitor drawing failed:", error);
+    }
+  }
+  setTimeout(poll, POLL_MS);
 }
 
 // ------------------------------------------------------------------ numbers
@@ -247,7 +260,10 @@ function lineChart(canvas, times, values, colour, digits) {
   let t0 = pts[0][0], t1 = pts[pts.length - 1][0];
   let lo = Math.min(...pts.map((q) => q[1])), hi = Math.max(...pts.map((q) => q[1]));
   if (!(t1 > t0)) t1 = t0 + 1;
-  if (!(hi > lo)) { const m = Math.abs(hi) * 0.05 || 1; lo -= m; hi += m; }
+  // a flat series (up to rounding noise) gets a band of +-5 % around it
+  if (!(hi - lo > 1e-9 * Math.max(Math.abs(hi), 1))) {
+    const mid = (hi + lo) / 2, m = Math.abs(mid) * 0.05 || 1; lo = mid - m; hi = mid + m;
+  }
   const X = (t) => left + (t - t0) / (t1 - t0) * (w - left - right);
   const Y = (v) => h - bottom - (v - lo) / (hi - lo) * (h - top - bottom);
   ctx.fillStyle = "#8b98a5"; ctx.font = "11px sans-serif";

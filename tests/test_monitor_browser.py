@@ -1,0 +1,199 @@
+"""The monitor in a real browser (Debian chromium driven by Playwright).
+
+Real processes on 127.0.0.1: a stockpile (``python -m monitor.demo_stockpile``:
+the stockpile asset with its REST interface) and the monitor
+(``minetwin monitor``). The page must show the REST values, switch the
+colouring, follow the simulation, say "unreachable" when the stockpile
+stops and recover by itself when it restarts, while the monitor keeps
+serving. Screenshots go to the test's tmp dir (and to
+``$MINETWIN_SCREENSHOT_DIR`` when set).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--no-first-run"]
+MINETWIN = str(Path(sys.executable).with_name("minetwin"))
+
+
+def _ensure_chromium() -> None:
+    """Debian's chromium, installed with apt-get where missing, else skip."""
+    if os.path.exists(CHROMIUM):
+        return
+    if shutil.which("apt-get") and os.geteuid() == 0:
+        subprocess.run(["apt-get", "install", "-y", "chromium"], capture_output=True, timeout=600)
+    if not os.path.exists(CHROMIUM):
+        pytest.skip(f"{CHROMIUM} missing and 'apt-get install -y chromium' could not install it "
+                    "(needs root and Debian's package repositories)")
+
+
+def _start(args, pattern, stream="stdout", timeout=30.0):
+    """Start a process and wait for the line matching ``pattern`` (returns proc, match)."""
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    pipe = getattr(proc, stream)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        line = pipe.readline()
+        if not line:
+            break
+        match = re.search(pattern, line)
+        if match:
+            return proc, match
+    proc.kill()
+    rest = proc.communicate(timeout=10)
+    raise AssertionError(f"{args} did not print {pattern!r}: {rest}")
+
+
+def _stop(proc) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _start_stockpile(port=0):
+    return _start([sys.executable, "-m", "monitor.demo_stockpile", "--port", str(port),
+                   "--speed", "4", "--seed", "1"], r"http://127\.0\.0\.1:(\d+)")
+
+
+def get(url):
+    try:
+        with urllib.request.urlopen(url, timeout=10) as response:
+            return response.status, json.loads(response.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read())
+
+
+@pytest.fixture
+def processes():
+    """Running stockpile and monitor; stops whatever is still running after the test."""
+    _ensure_chromium()
+    running = {}
+    stockpile, match = _start_stockpile()
+    running["stockpile"] = stockpile
+    stockpile_url = match.group(0)
+    monitor, match = _start([MINETWIN, "monitor", "--stockpile", stockpile_url, "--port", "0"],
+                            r"http://127\.0\.0\.1:\d+/", stream="stderr")
+    running["monitor"] = monitor
+    yield running, stockpile_url, match.group(0)
+    for proc in running.values():
+        _stop(proc)
+        for pipe in (proc.stdout, proc.stderr):
+            pipe.close()
+
+
+def test_monitor_page_against_a_running_stockpile(processes, tmp_path):
+    sync_api = pytest.importorskip("playwright.sync_api")
+    running, stockpile_url, monitor_url = processes
+    shots = [tmp_path / "monitor_live.png", tmp_path / "monitor_unreachable.png",
+             tmp_path / "monitor_recovered.png"]
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1600, "height": 1000})
+            requested, errors = [], []
+            page.on("request", lambda request: requested.append(request.url))
+            page.on("pageerror", lambda error: errors.append(str(error)))
+            # the 503s while the stockpile is down are expected; page faults are not
+            page.on("console", lambda message: message.type == "error"
+                    and not message.text.startswith("Failed to load resource")
+                    and errors.append(message.text))
+            page.goto(monitor_url + "?poll=400")
+            expect = sync_api.expect
+            expect(page.locator("#status")).to_have_text("LIVE", timeout=15_000)
+            page.wait_for_function("window.monitorState.updates >= 2", timeout=10_000)
+
+            # shown held mass and grade equal the REST values at the time shown
+            shown = page.evaluate("""() => ({
+                time: Number(document.getElementById('sim-time').dataset.value),
+                mass: document.getElementById('held-mass').dataset.value,
+                massText: document.getElementById('held-mass').textContent,
+                grade: document.getElementById('grade').dataset.value,
+                gradeText: document.getElementById('grade').textContent})""")
+            status, history = get(f"{stockpile_url}/history?since={shown['time'] - 1e-6}")
+            assert status == 200
+            row = history["rows"][0]
+            assert row["time_s"] == shown["time"]
+            assert float(shown["mass"]) == row["held_mass_kg"] > 0
+            assert shown["massText"] == f"{row['held_mass_kg'] / 1000:.3f}"
+            assert float(shown["grade"]) == row["grade"]
+            assert shown["gradeText"] == f"{row['grade'] * 100:.2f}"
+            assert int(page.locator("#pile").get_attribute("data-drawn")) > 0
+
+            # switching the colouring redraws the pile with the new attribute
+            pile = page.locator("#pile")
+            before = page.evaluate("document.getElementById('pile').toDataURL()")
+            for attribute, label in (("hardness", "hardness [-]"),
+                                     ("residence_time", "residence time [s]"),
+                                     ("origin", "origin")):
+                page.select_option("#colour-by", attribute)
+                expect(pile).to_have_attribute("data-colour-by", attribute)
+                expect(page.locator("#legend-label")).to_have_text(label)
+            expect(page.locator("#legend-min")).to_contain_text("source 0, 1")
+            assert page.evaluate("document.getElementById('pile').toDataURL()") != before
+            page.select_option("#colour-by", "grade")
+
+            # the page follows the simulation
+            updates, t0, mass0 = page.evaluate("""() => [window.monitorState.updates,
+                Number(document.getElementById('sim-time').dataset.value),
+                document.getElementById('held-mass').dataset.value]""")
+            page.wait_for_function(
+                f"Number(document.getElementById('sim-time').dataset.value) > {t0 + 2}",
+                timeout=10_000)
+            assert page.evaluate("window.monitorState.updates") > updates
+            assert page.locator("#held-mass").get_attribute("data-value") != mass0
+            assert page.evaluate("window.monitorState.history.length") >= 5
+            page.screenshot(path=str(shots[0]), full_page=True)
+
+            # the stockpile stops: the page says so, the monitor keeps serving
+            last_time = float(page.locator("#sim-time").get_attribute("data-value"))
+            _stop(running["stockpile"])
+            expect(page.locator("#status")).to_have_text("STOCKPILE UNREACHABLE", timeout=10_000)
+            expect(page.locator("#unreachable-banner")).to_be_visible()
+            assert get(monitor_url + "monitor/health")[0] == 200
+            status, body = get(monitor_url + "api/totals")
+            assert status == 503 and body["error"] == "stockpile unreachable"
+            page.screenshot(path=str(shots[1]), full_page=True)
+
+            # it restarts on the same port: the page recovers by itself, new run
+            port = stockpile_url.rsplit(":", 1)[1]
+            running["stockpile"], _ = _start_stockpile(port)
+            expect(page.locator("#status")).to_have_text("LIVE", timeout=15_000)
+            expect(page.locator("#unreachable-banner")).to_be_hidden()
+            page.wait_for_function("window.monitorState.updates > 0 && "
+                                   "window.monitorState.history.length > 0", timeout=10_000)
+            first = page.evaluate("window.monitorState.history[0].time_s")
+            assert first < last_time  # the chart restarted with the new run
+            page.screenshot(path=str(shots[2]), full_page=True)
+
+            assert running["monitor"].poll() is None
+            assert all(url.startswith(monitor_url) or url.startswith("data:")
+                       for url in requested), [u for u in requested if monitor_url not in u]
+            assert errors == []
+        finally:
+            browser.close()
+    for shot in shots:
+        assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    copy_to = os.environ.get("MINETWIN_SCREENSHOT_DIR")
+    if copy_to:
+        Path(copy_to).mkdir(parents=True, exist_ok=True)
+        for shot in shots:
+            shutil.copy(shot, Path(copy_to) / shot.name)
