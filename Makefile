@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 OUT    ?= out
 
-.PHONY: setup demo test test-fast bench clean
+.PHONY: setup fmus demo test test-fast bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -14,7 +14,17 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
-setup: $(STAMP)
+# The FMUs (fmus/build/*.fmu) are compiled from fmus/ sources; rebuilt when those change.
+FMU_STAMP   := fmus/build/.built-stamp
+FMU_SOURCES := $(wildcard fmus/*/interface.json fmus/*/model.c fmus/common/*) fmus/build.py
+
+$(FMU_STAMP): $(STAMP) $(FMU_SOURCES)
+	$(BIN)/minetwin fmus build
+	touch $(FMU_STAMP)
+
+fmus: $(FMU_STAMP)
+
+setup: $(STAMP) $(FMU_STAMP)
 
 demo: setup
 	$(BIN)/python examples/foundation_demo.py --out $(OUT)/demo
@@ -29,4 +39,4 @@ bench: setup
 	$(BIN)/python benchmarks/run_all.py --out $(OUT)/bench
 
 clean:
-	rm -rf $(VENV) $(OUT) build *.egg-info
+	rm -rf $(VENV) $(OUT) build *.egg-info fmus/build

@@ -25,6 +25,7 @@ COMMAND_MODULES = (
     "cosim.commands.rom",
     "cosim.commands.simulate",
     "cosim.commands.reproduce",
+    "cosim.commands.fmus",
 )
 """Modules that add subcommands, in the order ``--help`` lists them."""
 
