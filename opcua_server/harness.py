@@ -179,3 +179,29 @@ def drain_and_stop(server: ServerProcess, stockpile: StockpileProcess | None,
         summary = json.loads(stockpile.summary.read_text())
     server.stop()
     return json.loads(server.ledger.read_text()), summary
+
+
+async def connect(url: str, state: dict, role: str, *, password: str | None = None,
+                  certificate: Path | None = None, private_key: Path | None = None,
+                  secure: bool = True, timeout: float = 4.0):
+    """An asyncua client session as ``role`` (the user of that name).
+
+    By default it uses the run's trusted client certificate over
+    Basic256Sha256 SignAndEncrypt; ``password``, ``certificate`` and
+    ``secure=False`` let tests try what must be refused.
+    """
+    from asyncua import Client, ua
+    from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
+    client = Client(url, timeout=timeout)
+    client.application_uri = APPLICATION_URI_CLIENT
+    if role is not None:
+        client.set_user(role)
+        client.set_password(state["passwords"][role] if password is None else password)
+    if secure:
+        await client.set_security(SecurityPolicyBasic256Sha256,
+                                  str(certificate or state["client_cert"]),
+                                  str(private_key or state["client_key"]),
+                                  mode=ua.MessageSecurityMode.SignAndEncrypt)
+    await client.connect()
+    return client

@@ -151,11 +151,11 @@ class PlantProcess:
         k = int(np.searchsorted(self._lot_ends, t % period, side="right"))
         return self.lots[min(k, len(self.lots) - 1)]
 
-    def _load_cv101(self) -> None:
+    def _load_cv101(self, t: float) -> None:
         belt = self.cv101
         if belt.speed_m_s <= 0:
             return
-        lot = self._lot_at(self.time)
+        lot = self._lot_at(t)
         belt.tracking_id[0] = self.next_tracking_id
         belt.mass[0] = float(lot["feed_rate_kg_s"]) * belt.bin_length_m / belt.speed_m_s
         belt.grade[0] = float(lot["grade"])
@@ -170,12 +170,15 @@ class PlantProcess:
         if not np.isfinite(dt) or dt < 0:
             raise ValidationError("dt", "finite and >= 0 s", f"got {dt!r}")
         new = []
-        shifts = self.cv101.shifts(dt)
-        for k in range(shifts):
-            head = self.cv101.shift()
-            self._load_cv101()
+        belt = self.cv101
+        offset = belt.offset_m
+        for k in range(belt.shifts(dt)):
+            # the k-th shift happens when the belt has moved (k+1) bins from `offset`
+            t_shift = self.time + ((k + 1) * belt.bin_length_m - offset) / belt.speed_m_s
+            head = belt.shift()
+            self._load_cv101(t_shift)
             if head["mass"] > 0:
-                new.append(self._discharge(head, self.time + dt * (k + 1) / shifts))
+                new.append(self._discharge(head, t_shift))
         for _ in range(self.cv301.shifts(dt)):
             self._shift_cv301()
         self.time += dt

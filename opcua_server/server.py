@@ -93,7 +93,7 @@ class PlantAttributeService(AttributeService):
         for item in params.NodesToWrite:
             target = self.plant.writable.get(item.NodeId)
             if target is None or role not in target.roles or item.AttributeId != ua.AttributeIds.Value:
-                self.plant.refuse("BadUserAccessDenied",
+                await self.plant.refuse("BadUserAccessDenied",
                                   f"{item.NodeId.to_string()}: not writable by role {role!r}")
                 results.append(ua.StatusCode(ua.StatusCodes.BadUserAccessDenied))
                 continue
@@ -104,11 +104,11 @@ class PlantAttributeService(AttributeService):
                                           f"got {type(value).__name__}")
                 target.apply(value)
             except ExchangeRefused as exc:
-                self.plant.refuse(exc.status, exc.message)
+                await self.plant.refuse(exc.status, exc.message)
                 results.append(ua.StatusCode(getattr(ua.StatusCodes, exc.status)))
                 continue
             except (TypeError, ValueError) as exc:
-                self.plant.refuse("BadTypeMismatch", f"{item.NodeId.Identifier}: {exc}")
+                await self.plant.refuse("BadTypeMismatch", f"{item.NodeId.Identifier}: {exc}")
                 results.append(ua.StatusCode(ua.StatusCodes.BadTypeMismatch))
                 continue
             stored = ua.DataValue(ua.Variant(self.plant.coerce(value, target.variant), target.variant))
@@ -321,10 +321,6 @@ class PlantServer:
     def coerce(value, vtype):
         return int(value) if vtype == ua.VariantType.UInt64 else float(value)
 
-    def _set(self, name: str, value, vtype) -> None:
-        self.server.iserver.aspace.set_attribute_value(
-            self.nid(name), ua.AttributeIds.Value, ua.DataValue(ua.Variant(value, vtype)))
-
     async def _write(self, name: str, value, vtype) -> None:
         await self.server.write_attribute_value(self.nid(name), ua.DataValue(ua.Variant(value, vtype)))
 
@@ -375,11 +371,11 @@ class PlantServer:
         await w("Plant.SP201.Inbound.AcknowledgedSequence", p.acknowledged_sequence, U)
         await w("Plant.SP201.Outbound.LastSequence", p.outbound_sequence, U)
 
-    def refuse(self, status: str, message: str) -> None:
+    async def refuse(self, status: str, message: str) -> None:
         self.refusals.count += 1
         self.refusals.last = f"{status}: {message}"
         self.refusals.by_status[status] = self.refusals.by_status.get(status, 0) + 1
-        self._set("Plant.SP201.LastRefusal", self.refusals.last, ua.VariantType.String)
+        await self._write("Plant.SP201.LastRefusal", self.refusals.last, ua.VariantType.String)
         log.warning("refused: %s", self.refusals.last)
 
     def _surrogate_time(self, value) -> None:
@@ -436,8 +432,8 @@ class PlantServer:
         return out
 
     # --------------------------------------------------------------- methods
-    def _refused_call(self, exc: ExchangeRefused) -> ua.CallMethodResult:
-        self.refuse(exc.status, exc.message)
+    async def _refused_call(self, exc: ExchangeRefused) -> ua.CallMethodResult:
+        await self.refuse(exc.status, exc.message)
         result = ua.CallMethodResult()
         result.StatusCode = ua.StatusCode(getattr(ua.StatusCodes, exc.status))
         result.OutputArguments = [ua.Variant(exc.message, ua.VariantType.String)]
@@ -450,7 +446,7 @@ class PlantServer:
                 acked = self.process.acknowledge(seq)
                 await self._publish_inbound()
         except ExchangeRefused as exc:
-            return self._refused_call(exc)
+            return await self._refused_call(exc)
         return [ua.Variant(f"acknowledged up to {acked}", ua.VariantType.String)]
 
     async def _call_report(self, parent, sequence, tracking_ids, masses, grades):
@@ -472,11 +468,11 @@ class PlantServer:
             async with self._lock:
                 message = self.process.report_outflow(seq, tids, np.array(arrays[1], dtype=float),
                                                       np.array(arrays[2], dtype=float))
-                await self._publish_inbound()
+                await self.publish()
         except ExchangeRefused as exc:
-            return self._refused_call(exc)
+            return await self._refused_call(exc)
         except (TypeError, ValueError) as exc:
-            return self._refused_call(ExchangeRefused("BadInvalidArgument", "arguments",
+            return await self._refused_call(ExchangeRefused("BadInvalidArgument", "arguments",
                                                       "(UInt64, UInt64[], Double[], Double[])",
                                                       str(exc)))
         return [ua.Variant(message, ua.VariantType.String)]
@@ -490,7 +486,7 @@ class PlantServer:
             dt = _check("seconds", value, 0.0, 3600.0)
             await self.advance(dt)
         except ExchangeRefused as exc:
-            return self._refused_call(exc)
+            return await self._refused_call(exc)
         return [ua.Variant(self.process.time, ua.VariantType.Double)]
 
 
