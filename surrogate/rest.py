@@ -23,8 +23,13 @@ Two parts:
     ``serve_in_thread`` runs it beside a synchronous simulator.
 
 Units: SI (kg, m, s, kg/s); grade and hardness dimensionless. The pile is
-seen in the x-y plane of the particle positions (the 2D scene: x horizontal,
-y vertical). Bad query parameters get HTTP 400 with
+seen in the x-y plane (the 2D scene: x horizontal, y up). A storage model
+with geometry (``has_geometry = True``: ROM, DEM) is shown at its particles'
+positions and velocities. FIFO and mixing have no geometry; for them
+``schematic_layout`` draws the held particles in a half disc above the
+outlet by their rank in the order of leaving (the same picture the
+integration test's stockpile asset draws): an illustration of what leaves
+first, not a flow simulation. Bad query parameters get HTTP 400 with
 ``{"error": "FIELD: must be ...", "field": FIELD}``.
 """
 
@@ -80,14 +85,18 @@ class StorageView:
         Current feeder rate [kg/s] (used for ``totals`` and the prediction).
     history_limit : int
         Rows of the time series kept (oldest dropped first), default 100,000.
+    display_radius_m : float
+        Radius [m] of the schematic pile of a storage without geometry, default 10.
     """
 
-    def __init__(self, particles, storage, clock, discharge_rate, history_limit: int = 100_000):
+    def __init__(self, particles, storage, clock, discharge_rate, history_limit: int = 100_000,
+                 display_radius_m: float = 10.0):
         self.particles = particles
         self.storage = storage
         self._clock = clock
         self._rate = discharge_rate
         self._history: deque = deque(maxlen=int(history_limit))
+        self.display_radius_m = float(display_radius_m)
 
     @property
     def time(self) -> float:
@@ -101,6 +110,18 @@ class StorageView:
 
     def _held_slots(self) -> np.ndarray:
         return self.particles.owned_by(self.storage.owner)
+
+    def _layout(self):
+        """``(slots, x, y, vx, vy)`` of the held particles in the display plane."""
+        store = self.particles
+        if getattr(self.storage, "has_geometry", False):
+            slots = self._held_slots()
+            return (slots, store.position[slots, 0], store.position[slots, 1],
+                    store.velocity[slots, 0], store.velocity[slots, 1])
+        order = self.storage.held_ids()
+        slots = store.slots(order)
+        return (slots, *schematic_layout(order, float(store.mass[slots].sum()),
+                                         self.discharge_rate, self.display_radius_m))
 
     def totals(self) -> dict:
         """Held mass [kg], mass-weighted grade and hardness, D80 [m], count,
@@ -135,10 +156,8 @@ class StorageView:
         time [s] and velocity vx, vy [m/s] on an nx-by-ny grid spanning the
         held particles (arrays ny x nx, row 0 at the lowest y; NaN where a
         cell is empty)."""
-        slots = self._held_slots()
+        slots, x, y, vx, vy = self._layout()
         store = self.particles
-        position = store.position[slots]
-        x, y = position[:, 0], position[:, 1]
         mass = store.mass[slots]
         x_edges = _edges(x, nx)
         y_edges = _edges(y, ny)
@@ -146,8 +165,8 @@ class StorageView:
             "grade": store.grade[slots],
             "hardness": store.hardness[slots],
             "residence_time": self.time - store.time_in_owner[slots],
-            "vx": store.velocity[slots, 0],
-            "vy": store.velocity[slots, 1],
+            "vx": vx,
+            "vy": vy,
         }
 
         def binned(weights):
@@ -167,17 +186,18 @@ class StorageView:
         residence_time [s], origin (x of the position of origin [m]), and
         ``total`` (held count)."""
         store = self.particles
-        slots = self._held_slots()
-        slots = slots[np.argsort(store.id[slots], kind="stable")][offset: offset + limit]
+        slots, x, y, _, _ = self._layout()
+        page = np.argsort(store.id[slots], kind="stable")[offset: offset + limit]
+        slots = slots[page]
         ids = store.id[slots]
         tracking = (store.attribute("tracking_id")[slots]
                     if "tracking_id" in store.attribute_names else ids)
         return {
-            "total": int(np.count_nonzero(store.owner == self.storage.owner)),
+            "total": int(x.size),
             "id": ids,
             "tracking_id": tracking,
-            "x": store.position[slots, 0],
-            "y": store.position[slots, 1],
+            "x": x[page],
+            "y": y[page],
             "grade": store.grade[slots],
             "hardness": store.hardness[slots],
             "residence_time": self.time - store.time_in_owner[slots],
@@ -206,6 +226,25 @@ class StorageView:
                     if "tracking_id" in store.attribute_names else ids)
         return {"mass_kg": mass, "grade": grade, "hardness": hardness, "d80_m": d80,
                 "particle_count": int(ids.size), "tracking_ids": np.unique(tracking)}
+
+
+def schematic_layout(order, held_mass: float, discharge_rate: float, radius: float):
+    """Display positions and velocities for a storage model without geometry.
+
+    The particle whose rank in the order of leaving ``order`` is a fraction
+    ``s`` of the held particles sits at radius ``R sqrt(s)`` from the outlet
+    at the origin (area-uniform in the half disc of radius ``R`` [m]), at
+    an angle in [0, pi] fixed by its id (golden-ratio hash), and moves
+    radially at d(R sqrt(s))/dt with ds/dt = -discharge_rate / held_mass.
+    Returns ``x, y`` [m] and ``vx, vy`` [m/s].
+    """
+    n = len(order)
+    s = (np.arange(n) + 0.5) / max(n, 1)
+    theta = np.pi * np.mod(np.asarray(order, dtype=np.float64) * 0.6180339887498949, 1.0)
+    r = radius * np.sqrt(s)
+    speed = -radius * (discharge_rate / max(held_mass, 1e-300)) / (2.0 * np.sqrt(s))
+    cos, sin = np.cos(theta), np.sin(theta)
+    return r * cos, r * sin, speed * cos, speed * sin
 
 
 def _edges(values: np.ndarray, cells: int) -> np.ndarray:
