@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "cosim.commands.stockpile",
     "cosim.commands.integration",
     "cosim.commands.rom",
+    "cosim.commands.dem",
     "cosim.commands.simulate",
     "cosim.commands.reproduce",
     "cosim.commands.fmus",

@@ -189,6 +189,7 @@ STORAGE_MODELS: dict[str, str] = {
     "fifo": "cosim.storage:FifoStorage",
     "mixing": "cosim.storage:MixingStorage",
     "rom": "surrogate.rom.storage:RomStorage",
+    "dem": "surrogate.dem_storage:DemStorage",
 }
 """Storage models by name, cheapest first; values are ``module:Class``."""
 

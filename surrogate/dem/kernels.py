@@ -28,9 +28,11 @@ Contact law (pair i, j; n the unit vector from j to i, t = (-n_y, n_x)):
   ``c_t = 2 zeta sqrt(k_t m_eff)``; if ``|F_t| > mu F_n+`` then
   ``F_t = sign(F_t) mu F_n+`` and ``xi = -F_t / k_t`` (sliding), where
   ``F_n+ = max(k_n delta - c_n v_n, 0)``;
-* rolling angle ``theta += (w_i - w_j) dt``, ``M_r = -k_r theta`` with
-  ``k_r = 2.25 k_n mu_r^2 R_eff^2``, ``R_eff = r_i r_j / (r_i + r_j)``,
-  capped at ``mu_r R_eff F_n+`` (Ai et al. 2011, model C without dashpot);
+* rolling angle ``theta += (w_i - w_j) dt``,
+  ``M_r = -k_r theta - c_r (w_i - w_j)`` with ``k_r = 2.25 k_n mu_r^2 R_eff^2``,
+  ``R_eff = r_i r_j / (r_i + r_j)``, ``c_r = 2 zeta sqrt(k_r I_eff)``,
+  ``I_eff = I_i I_j / (I_i + I_j)``, capped at ``mu_r R_eff F_n+`` (then
+  ``theta = -M_r / k_r``) (Ai et al. 2011, Powder Technol. 206:269, model C);
 * force on i ``F_n n + F_t t``, torque on i ``-r_i F_t + M_r``; the
   opposite force and torque ``-r_j F_t - M_r`` on j.
 
@@ -207,7 +209,8 @@ def build_wall_list(pos, radius, skin, walls, old_start, old_wall, old_ht, old_h
 
 
 @njit(cache=True, inline="always")
-def _contact(kn, kt, cn, ct, mu, mur, kr_coef, coh, delta, vn, vt, wrel, m_eff, r_eff, xi, theta, dt):
+def _contact(kn, kt, cn, ct, mu, mur, kr_coef, coh, delta, vn, vt, wrel, m_eff, i_eff, r_eff,
+             xi, theta, dt):
     """Normal force, tangential force, rolling torque and updated springs of one contact."""
     sq = math.sqrt(m_eff)
     fn = kn * delta - cn * sq * vn
@@ -223,10 +226,11 @@ def _contact(kn, kt, cn, ct, mu, mur, kr_coef, coh, delta, vn, vt, wrel, m_eff, 
     kr = kr_coef * r_eff * r_eff
     if kr > 0.0:
         theta = theta + wrel * dt
-        mr = -kr * theta
+        # rolling dashpot with the normal damping ratio: cn / sqrt(kn) = 2 zeta
+        mr = -kr * theta - cn * math.sqrt(kr * i_eff / kn) * wrel
         mlim = mur * r_eff * fn
         if abs(mr) > mlim:
-            mr = -mlim if theta > 0.0 else mlim
+            mr = mlim if mr > 0.0 else -mlim
             theta = -mr / kr
     else:
         theta = 0.0
@@ -234,7 +238,7 @@ def _contact(kn, kt, cn, ct, mu, mur, kr_coef, coh, delta, vn, vt, wrel, m_eff, 
 
 
 @njit(cache=True)
-def compute_forces(pos, vel, omega, radius, body_mass, force, torque, start, nbr, ht, hr,
+def compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht, hr,
                    wall_start, wall, wall_ht, wall_hr, walls, params, dt):
     """Contact forces [N] and torques [N m] of all disks; updates contact history."""
     n = pos.shape[0]
@@ -279,6 +283,7 @@ def compute_forces(pos, vel, omega, radius, body_mass, force, torque, start, nbr
             mj = body_mass[j]
             fn, ft, mr, xi, theta = _contact(kn, kt, cn, ct, mu, mur, krc, coh, rsum - d, vn, vt,
                                              omega[i] - omega[j], mi * mj / (mi + mj),
+                                             1.0 / (inv_inertia[i] + inv_inertia[j]),
                                              ri * rj / rsum, ht[p], hr[p], dt)
             ht[p] = xi
             hr[p] = theta
@@ -306,7 +311,8 @@ def compute_forces(pos, vel, omega, radius, body_mass, force, torque, start, nbr
             vn = vel[i, 0] * nx_ + vel[i, 1] * ny_
             vt = -vel[i, 0] * ny_ + vel[i, 1] * nx_ - ri * omega[i]
             fn, ft, mr, xi, theta = _contact(kn, kt, cn, ct, mu, mur, krc, coh, ri - d, vn, vt,
-                                             omega[i], mi, ri, wall_ht[p], wall_hr[p], dt)
+                                             omega[i], mi, 1.0 / inv_inertia[i], ri,
+                                             wall_ht[p], wall_hr[p], dt)
             wall_ht[p] = xi
             wall_hr[p] = theta
             fxi += fn * nx_ - ft * ny_
@@ -341,7 +347,7 @@ def run_steps(n_steps, dt, time, pos, vel, omega, force, torque, radius, body_ma
     limit2 = half_skin * half_skin
     n_removed = 0
     for step in range(n_steps):
-        compute_forces(pos, vel, omega, radius, body_mass, force, torque, start, nbr, ht, hr,
+        compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht, hr,
                        wall_start, wall, wall_ht, wall_hr, walls, params, dt)
         moved = False
         for i in range(n):

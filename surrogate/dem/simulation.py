@@ -167,30 +167,58 @@ class Dem:
                 raise ValidationError("mass_kg", "a scalar lot mass when ids is None",
                                       f"got shape {lot.shape}")
             masses = emitter.split_lot(self.cfg, float(lot), self.rng)
-            new_ids = np.arange(self.next_id, self.next_id + masses.size, dtype=np.uint64)
+        else:
+            masses = np.broadcast_to(np.asarray(mass_kg, dtype=np.float64),
+                                     np.asarray(ids).ravel().shape)
+        rows = self._validated(masses, grade, hardness, f16, tracking_id, ids)
+        radius = self.cfg.diameter_of_mass(rows["mass"]) / 2.0
+        pos = emitter.inlet_positions(self.cfg, int(inlet), radius, self.pos, self.radius)
+        vel = np.zeros((radius.size, 2))
+        vel[:, 1] = -self.cfg.inlet_velocity
+        return self._append(rows, pos, vel)
+
+    def place(self, positions, mass_kg, grade, hardness, f16, tracking_id, ids=None) -> np.ndarray:
+        """Put disks at rest at ``positions`` (N, 2) [m] (initial scenes, e.g. a
+        packed pile); one disk per row, arguments as in ``emit`` with ids.
+        Overlaps are the caller's business. Returns the ids (uint64)."""
+        positions = check_finite_range("positions", positions, unit="m")
+        if positions.ndim != 2 or positions.shape[1] != 2:
+            raise ValidationError("positions", "an (N, 2) array [m]", f"got {positions.shape}")
+        masses = np.broadcast_to(np.asarray(mass_kg, dtype=np.float64), (positions.shape[0],))
+        rows = self._validated(masses, grade, hardness, f16, tracking_id, ids)
+        return self._append(rows, positions, np.zeros_like(positions))
+
+    def _validated(self, masses, grade, hardness, f16, tracking_id, ids) -> dict:
+        """Check one batch as a whole; return its per-particle columns."""
+        masses = check_finite_range("mass_kg", masses, 0.0, low_open=True, unit="kg")
+        count = masses.size
+        if ids is None:
+            new_ids = np.arange(self.next_id, self.next_id + count, dtype=np.uint64)
         else:
             new_ids = np.asarray(ids, dtype=np.uint64).ravel()
-            masses = check_finite_range("mass_kg", np.broadcast_to(mass_kg, new_ids.shape),
-                                        0.0, low_open=True, unit="kg").astype(np.float64)
-            if np.unique(new_ids).size != new_ids.size or np.isin(new_ids, self.id).any():
+            if new_ids.size != count:
+                raise ValidationError("ids", f"{count} ids, one per particle", f"got {new_ids.size}")
+            if np.unique(new_ids).size != count or np.isin(new_ids, self.id).any():
                 raise ValidationError("ids", "ids not already in the DEM and not repeated")
-        count = masses.size
         try:
             grade = check_finite_range("grade", np.broadcast_to(grade, (count,)), 0.0, 1.0)
             hardness = check_finite_range("hardness", np.broadcast_to(hardness, (count,)),
                                           0.0, low_open=True)
             f16 = check_fractions(np.broadcast_to(f16, (count, N_CLASSES)), "f16")
             tracking = np.broadcast_to(np.asarray(tracking_id, dtype=np.uint64), (count,))
+        except ValidationError:
+            raise
         except ValueError as exc:
-            if isinstance(exc, ValidationError):
-                raise
             raise ValidationError("emit", f"scalars or arrays of length {count}", str(exc)) from None
-        diameter = self.cfg.diameter_of_mass(masses)
+        return {"id": new_ids, "mass": masses.astype(np.float64), "grade": grade,
+                "hardness": hardness, "f": f16 / f16.sum(axis=1, keepdims=True),
+                "tracking_id": tracking}
+
+    def _append(self, rows: dict, pos: np.ndarray, vel: np.ndarray) -> np.ndarray:
+        count = rows["mass"].size
+        diameter = self.cfg.diameter_of_mass(rows["mass"])
         radius = diameter / 2.0
         body = self.cfg.sphere_mass(diameter)
-        pos = emitter.inlet_positions(self.cfg, int(inlet), radius, self.pos, self.radius)
-        vel = np.zeros((count, 2))
-        vel[:, 1] = -self.cfg.inlet_velocity
         old_n = self.n
         self.pos = np.concatenate((self.pos, pos))
         self.vel = np.concatenate((self.vel, vel))
@@ -199,18 +227,14 @@ class Dem:
         self.body_mass = np.concatenate((self.body_mass, body))
         self.inv_mass = np.concatenate((self.inv_mass, 1.0 / body))
         self.inv_inertia = np.concatenate((self.inv_inertia, 1.0 / (0.4 * body * radius ** 2)))
-        self.id = np.concatenate((self.id, new_ids))
-        self.tracking_id = np.concatenate((self.tracking_id, tracking))
-        self.mass = np.concatenate((self.mass, masses))
-        self.grade = np.concatenate((self.grade, grade))
-        self.hardness = np.concatenate((self.hardness, hardness))
-        self.f = np.concatenate((self.f, f16 / f16.sum(axis=1, keepdims=True)))
+        for name in ("id", "tracking_id", "mass", "grade", "hardness", "f"):
+            setattr(self, name, np.concatenate((getattr(self, name), rows[name])))
         self.entry_time = np.concatenate((self.entry_time, np.full(count, self.time)))
-        self.emitted_mass += float(masses.sum())
+        self.emitted_mass += float(rows["mass"].sum())
         if count:
-            self.next_id = max(self.next_id, int(new_ids.max()) + 1)
+            self.next_id = max(self.next_id, int(rows["id"].max()) + 1)
         self._mark_rows_changed(np.concatenate((np.arange(old_n), np.full(count, -1))))
-        return new_ids.copy()
+        return rows["id"].copy()
 
     def _mark_rows_changed(self, new_to_old: np.ndarray) -> None:
         """Rows changed (``new_to_old[i]``: previous row of row i, -1 if new);

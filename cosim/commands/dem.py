@@ -1,0 +1,202 @@
+"""``minetwin dem``: build a DEM stockpile and discharge it.
+
+``minetwin dem pile --particles N --out DIR`` pours a pile from the inlets
+(or, with ``--method pack``, lays a pile out on a lattice and lets it settle)
+and writes ``DIR/checkpoint.npz``, ``DIR/summary.json`` and pictures
+``DIR/pile_{grade,residence_time,speed}.png``.
+
+``minetwin dem discharge --from DIR --rate KG_PER_S --duration S --out DIR``
+continues from ``DIR/checkpoint.npz`` with the feeder at the given rate and
+writes the same outputs plus ``DIR/discharged.csv`` (one row per particle
+that left).
+"""
+
+from __future__ import annotations
+
+import sys
+
+SUMMARY_KEYS = ("particles", "dt_s", "steps", "wall_s", "particle_steps_per_s",
+                "angle_of_repose_deg", "discharged_kg", "mass_balance_rel_error")
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "dem", help="2D DEM of the stockpile: build a pile, discharge it",
+        description="Numba 2D DEM of the stockpile (surrogate/dem/README.md).")
+    sub = parser.add_subparsers(dest="dem_command", metavar="ACTION")
+    pile = sub.add_parser("pile", help="fill a pile from the inlets and let it settle",
+                          description="Fill a pile of N particles from the two inlets "
+                                      "(lots alternate between them) and let it settle.")
+    pile.add_argument("--particles", type=int, required=True, help="number of particles N")
+    pile.add_argument("--out", required=True, help="output directory")
+    pile.add_argument("--config", help="TOML file with DemConfig fields (top level or [dem])")
+    pile.add_argument("--method", choices=("pour", "pack"), default="pour",
+                      help="pour from the inlets (default) or pack on a lattice and settle")
+    pile.add_argument("--lot-kg", type=float, default=600.0,
+                      help="mass per emitted lot [kg] (600)")
+    pile.add_argument("--lot-interval", type=float, default=0.5,
+                      help="time between lots [s] (0.5, i.e. 1.2 t/s)")
+    pile.add_argument("--settle-time", type=float, default=20.0,
+                      help="longest settling time after filling [s] (20)")
+    pile.add_argument("--snapshot-interval", type=float,
+                      help="write snapshots to OUT/snapshots every this many seconds")
+    pile.add_argument("--seed", type=int, default=0, help="random seed (0)")
+    pile.set_defaults(handler=run_pile)
+
+    dis = sub.add_parser("discharge", help="discharge a pile through the feeder",
+                         description="Continue from a pile's checkpoint with the feeder of "
+                                     "outlet 0 at a constant rate.")
+    dis.add_argument("--from", dest="source", required=True,
+                     help="directory with checkpoint.npz (from `dem pile` or `dem discharge`)")
+    dis.add_argument("--rate", type=float, required=True, help="feeder rate [kg/s] (0..2000)")
+    dis.add_argument("--duration", type=float, required=True, help="simulated time [s]")
+    dis.add_argument("--out", required=True, help="output directory")
+    dis.add_argument("--snapshot-interval", type=float,
+                     help="write snapshots to OUT/snapshots every this many seconds")
+    dis.set_defaults(handler=run_discharge)
+    parser.set_defaults(handler=lambda args: (parser.print_help(sys.stderr), 2)[1])
+
+
+def _check_positive(name, value, allow_zero=False):
+    import math
+
+    from cosim.errors import ValidationError
+
+    if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        raise ValidationError(name, ">= 0" if allow_zero else "> 0", f"got {value!r}")
+
+
+def _finish(dem, out, label, wall, steps, n_particle_steps, discharged_kg, balance):
+    """Write checkpoint, pictures and summary.json; print the summary."""
+    import json
+
+    from surrogate.dem.analysis import angle_of_repose
+    from surrogate.dem.plots import pile_pictures
+
+    dem.save_checkpoint(out / "checkpoint.npz")
+    pile_pictures(dem.snapshot(), out, title=label)
+    summary = {
+        "particles": dem.n,
+        "dt_s": dem.dt,
+        "steps": steps,
+        "wall_s": wall,
+        "particle_steps_per_s": n_particle_steps / wall if wall > 0 else 0.0,
+        "angle_of_repose_deg": angle_of_repose(dem.pos, dem.radius),
+        "discharged_kg": discharged_kg,
+        "mass_balance_rel_error": balance,
+        "held_kg": dem.held_mass(),
+        "time_s": dem.time,
+        "stable_dt_s": dem.stable_dt,
+        "max_overlap_over_diameter": dem.max_overlap_ratio(),
+        "list_builds": dem.list_builds,
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+class _Counter:
+    """Progress callback that also counts particle-steps between calls."""
+
+    def __init__(self, progress, dem):
+        self.progress = progress
+        self.steps = dem.steps_done
+        self.particle_steps = 0.0
+        self.writer = None
+
+    def __call__(self, dem):
+        self.particle_steps += dem.n * (dem.steps_done - self.steps)
+        self.steps = dem.steps_done
+        if self.writer is not None:
+            self.writer.maybe_write(dem)
+        self.progress(dem)
+
+
+def run_pile(args) -> int:
+    import time
+    from pathlib import Path
+
+    from cosim.errors import ValidationError
+    from surrogate.dem import DemConfig
+    from surrogate.dem.builders import (Progress, config_for_particles, packed_pile, pour_pile,
+                                        settle)
+    from surrogate.dem.simulation import Dem
+    from surrogate.dem.snapshots import SnapshotWriter
+
+    if args.particles < 1 or args.particles > 200_000:
+        raise ValidationError("--particles", "in [1, 200000]", f"got {args.particles}")
+    _check_positive("--lot-kg", args.lot_kg)
+    _check_positive("--lot-interval", args.lot_interval)
+    _check_positive("--settle-time", args.settle_time, allow_zero=True)
+    base = DemConfig.from_toml(args.config) if args.config else None
+    cfg = base if base is not None else config_for_particles(args.particles)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    if args.method == "pour":
+        dem = Dem(cfg, seed=args.seed)
+    else:
+        dem = packed_pile(cfg, args.particles, seed=args.seed)
+    counter = _Counter(Progress(sys.stderr, "dem pile"), dem)
+    if args.snapshot_interval:
+        counter.writer = SnapshotWriter(out / "snapshots", args.snapshot_interval)
+    if args.method == "pour":
+        pour_pile(dem, args.particles, lot_kg=args.lot_kg, lot_interval=args.lot_interval,
+                  progress=counter)
+    settle(dem, max_time=args.settle_time, progress=counter)
+    wall = time.perf_counter() - start
+    return _finish(dem, out, "pile", wall, dem.steps_done, counter.particle_steps,
+                   dem.discharged_mass, dem.mass_balance_error())
+
+
+def run_discharge(args) -> int:
+    import time
+    from pathlib import Path
+
+    from cosim.errors import ValidationError
+    from surrogate.dem.builders import Progress
+    from surrogate.dem.simulation import Dem
+    from surrogate.dem.snapshots import SnapshotWriter
+
+    source = Path(args.source) / "checkpoint.npz"
+    if not source.is_file():
+        raise ValidationError("--from", "a directory holding checkpoint.npz",
+                              f"{source} not found")
+    _check_positive("--duration", args.duration)
+    dem = Dem.load_checkpoint(source)
+    dem.set_discharge_rate(args.rate, outlet=0)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    held0 = dem.held_mass()
+    steps0 = dem.steps_done
+    counter = _Counter(Progress(sys.stderr, "dem discharge"), dem)
+    if args.snapshot_interval:
+        counter.writer = SnapshotWriter(out / "snapshots", args.snapshot_interval)
+    chunk = 0.25
+    end = dem.time + args.duration
+    records = []
+    start = time.perf_counter()
+    while dem.time < end - 1e-9:
+        dem.advance(min(chunk, end - dem.time))
+        records.append(dem.discharged())
+        counter(dem)
+    wall = time.perf_counter() - start
+    _write_discharged(out / "discharged.csv", records)
+    discharged = float(sum(r["mass"].sum() for r in records))
+    balance = abs(held0 - dem.held_mass() - discharged) / held0 if held0 > 0 else 0.0
+    rate = discharged / args.duration
+    print(f"dem discharge: {discharged:.0f} kg in {args.duration:g} s = {rate:.1f} kg/s "
+          f"(setpoint {args.rate:g} kg/s)", file=sys.stderr)
+    return _finish(dem, out, "discharge", wall, dem.steps_done - steps0,
+                   counter.particle_steps, discharged, balance)
+
+
+def _write_discharged(path, records) -> None:
+    import numpy as np
+    import pandas as pd
+
+    keys = ("id", "tracking_id", "mass", "grade", "hardness", "entry_time", "time", "outlet")
+    frame = pd.DataFrame({k: np.concatenate([r[k] for r in records]) if records else []
+                          for k in keys})
+    frame.rename(columns={"mass": "mass_kg", "time": "time_s", "entry_time": "entry_time_s"}
+                 ).to_csv(path, index=False)

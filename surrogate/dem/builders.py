@@ -1,0 +1,139 @@
+"""Ways to build a pile: pour it from the inlets, or lay it out and let it settle.
+
+``config_for_particles(n)`` sizes the geometry for ``n`` particles: a 2D
+pile at angle alpha holding area ``A = n * a / phi`` (mean disk area ``a``,
+packing fraction phi = 0.82) has height ``H = sqrt(A tan alpha)``; the
+inlets are put ``inlet_clearance`` above H and the floor is made 1.5 times
+the base width ``2 H / tan alpha`` (at least 20 m), never more than asked.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time as walltime
+
+import numpy as np
+
+from surrogate.dem.config import DemConfig
+from surrogate.dem.simulation import Dem
+
+PACKING_FRACTION = 0.82
+"""Area fraction of a random dense packing of these polydisperse disks [-]."""
+
+
+def pile_height(cfg: DemConfig, n: int, angle_deg: float = 35.0) -> float:
+    """Height [m] of a triangular 2D pile of ``n`` disks at ``angle_deg``."""
+    mean_area = math.pi / 4.0 * (cfg.diameter_min ** 2 + cfg.diameter_min * cfg.diameter_max
+                                 + cfg.diameter_max ** 2) / 3.0
+    area = n * mean_area / PACKING_FRACTION
+    return math.sqrt(area * math.tan(math.radians(angle_deg)))
+
+
+def config_for_particles(n: int, base: DemConfig | None = None, inlet_clearance: float = 2.0,
+                         angle_deg: float = 30.0) -> DemConfig:
+    """``base`` (default ``DemConfig()``) with inlets and floor sized for ``n`` disks."""
+    base = base if base is not None else DemConfig()
+    height = pile_height(base, n, angle_deg)
+    width = max(20.0, 1.5 * 2.0 * height / math.tan(math.radians(angle_deg)))
+    width = min(width, base.floor_width)
+    inlet_y = height + inlet_clearance
+    inlets = [[x, inlet_y] for x, _ in base.inlets]
+    return dataclasses.replace(base, floor_width=width, inlets=inlets)
+
+
+def pour_pile(dem: Dem, n_particles: int, lot_kg: float = 600.0, lot_interval: float = 0.5,
+              grade=None, hardness: float = 1.0, f16=None, progress=None) -> None:
+    """Feed lots of ``lot_kg`` [kg] every ``lot_interval`` [s], alternating the
+    inlets, until ``n_particles`` disks have entered. Lot k gets tracking id k
+    and (by default) a grade that rises linearly from 0.2 to 0.8 over the
+    fill, so pictures show the layering. ``progress(dem)`` is called per lot."""
+    if f16 is None:
+        f16 = np.zeros(16)
+        f16[12] = 1.0
+    expected_lots = max(1, int(math.ceil(n_particles * _mean_mass(dem.cfg) / lot_kg)))
+    lot = 0
+    entered = 0
+    while entered < n_particles:
+        g = (0.2 + 0.6 * lot / max(expected_lots - 1, 1)) if grade is None else grade
+        remaining = n_particles - entered
+        mass = min(lot_kg, remaining * _mean_mass(dem.cfg))
+        ids = dem.emit(mass, min(g, 1.0), hardness, f16, lot, inlet=lot % len(dem.cfg.inlets))
+        entered += ids.size
+        lot += 1
+        dem.advance(lot_interval)
+        if progress is not None:
+            progress(dem)
+
+
+def settle(dem: Dem, max_time: float = 20.0, speed: float = 0.05, chunk: float = 0.5,
+           progress=None) -> float:
+    """Advance until every disk is slower than ``speed`` [m/s] or ``max_time``
+    [s] has passed; returns the time spent settling [s]."""
+    start = dem.time
+    while dem.time - start < max_time:
+        dem.advance(chunk)
+        if progress is not None:
+            progress(dem)
+        if dem.n == 0 or float(np.hypot(dem.vel[:, 0], dem.vel[:, 1]).max()) < speed:
+            break
+    return dem.time - start
+
+
+def packed_pile(cfg: DemConfig, n_particles: int, seed: int = 0, angle_deg: float = 30.0) -> Dem:
+    """A ``Dem`` with ``n_particles`` disks laid on a hexagonal lattice of
+    spacing ``diameter_max`` filling a triangle at ``angle_deg`` centred on
+    x = 0, at rest (to be settled with ``settle``). Diameters are uniform in
+    the configured range; masses are the disks' sphere masses; grade rises
+    with height (0.2 at the floor to 0.8 at the top)."""
+    rng = np.random.default_rng(seed)
+    pitch = cfg.diameter_max * 1.001
+    row_height = pitch * math.sqrt(3.0) / 2.0
+    slope = math.tan(math.radians(angle_deg))
+    # grow the triangle until it holds n lattice sites
+    height = pile_height(cfg, n_particles, angle_deg)
+    while True:
+        points = []
+        y = pitch / 2.0
+        row = 0
+        while y < height and len(points) < n_particles:
+            half = (height - y) / slope
+            xs = np.arange(-half + pitch / 2 + (row % 2) * pitch / 2, half - pitch / 2 + 1e-9, pitch)
+            points.extend((x, y) for x in xs)
+            y += row_height
+            row += 1
+        if len(points) >= n_particles:
+            break
+        height *= 1.05
+    pos = np.array(points[:n_particles])
+    diameter = rng.uniform(cfg.diameter_min, cfg.diameter_max, n_particles)
+    dem = Dem(cfg, seed=seed)
+    f16 = np.zeros(16)
+    f16[12] = 1.0
+    grade = 0.2 + 0.6 * pos[:, 1] / max(pos[:, 1].max(), 1e-9)
+    dem.place(pos, cfg.sphere_mass(diameter), grade, 1.0, f16, np.arange(n_particles) // 10)
+    return dem
+
+
+def _mean_mass(cfg: DemConfig) -> float:
+    return float(cfg.sphere_mass(0.5 * (cfg.diameter_min + cfg.diameter_max)))
+
+
+class Progress:
+    """Prints DEM progress to a stream (stderr) at most every ``every`` seconds of wall time."""
+
+    def __init__(self, stream, label: str, every: float = 2.0):
+        self.stream = stream
+        self.label = label
+        self.every = every
+        self.start = walltime.perf_counter()
+        self.last = self.start
+
+    def __call__(self, dem: Dem) -> None:
+        now = walltime.perf_counter()
+        if now - self.last < self.every:
+            return
+        self.last = now
+        print(f"{self.label}: t = {dem.time:8.2f} s, {dem.n} particles, "
+              f"step {dem.steps_done}, held {dem.held_mass() / 1e3:.1f} t, "
+              f"wall {now - self.start:.0f} s", file=self.stream, flush=True)

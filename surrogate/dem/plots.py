@@ -1,0 +1,52 @@
+"""PNG pictures of a DEM pile coloured by grade, residence time and speed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+PICTURES = {
+    "grade": ("grade", "grade [-]", "viridis"),
+    "residence_time": ("residence_time", "residence time [s]", "magma"),
+    "speed": (None, "speed [m/s]", "plasma"),
+}
+"""File stem -> (snapshot key or None for |velocity|, colour-bar label, colour map)."""
+
+
+def pile_pictures(snapshot: dict, out_dir, title: str = "") -> list[Path]:
+    """Write ``pile_<stem>.png`` for each entry of ``PICTURES``; return the paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import EllipseCollection
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    pos = snapshot["position"]
+    diameter = 2.0 * snapshot["radius"]
+    paths = []
+    for stem, (key, label, cmap) in PICTURES.items():
+        values = (np.hypot(snapshot["velocity"][:, 0], snapshot["velocity"][:, 1])
+                  if key is None else snapshot[key])
+        fig, ax = plt.subplots(figsize=(12, 5))
+        if pos.shape[0]:
+            disks = EllipseCollection(diameter, diameter, 0.0, units="x", offsets=pos,
+                                      offset_transform=ax.transData, cmap=cmap)
+            disks.set_array(np.asarray(values, dtype=float))
+            ax.add_collection(disks)
+            fig.colorbar(disks, ax=ax, label=label, shrink=0.8)
+            pad = float(diameter.max())
+            ax.set_xlim(pos[:, 0].min() - pad, pos[:, 0].max() + pad)
+            ax.set_ylim(0.0, pos[:, 1].max() + pad)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_title(f"{title} t = {float(snapshot['time']):.1f} s, "
+                     f"{pos.shape[0]} particles, coloured by {label}")
+        path = out_dir / f"pile_{stem}.png"
+        fig.savefig(path, dpi=110, bbox_inches="tight")
+        plt.close(fig)
+        paths.append(path)
+    return paths

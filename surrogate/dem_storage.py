@@ -1,0 +1,132 @@
+"""The DEM as a storage model: the top rung of the fidelity ladder (DESIGN.md section 4).
+
+Source: paper section "Digital twin as a distributed particle simulation"
+(physics-based micro-tracking in a stockpile: particles fall, impact,
+spread; particles at the outlet are removed and reported) and section
+"Integration test". The DEM itself is ``surrogate.dem`` (2D disks).
+
+Mapping between the ``ParticleStore`` and the DEM: each pseudo-particle
+owned by the storage becomes one DEM disk with the same id; the disk's
+diameter follows from the particle's mass and the DEM density (a sphere),
+clipped to the configured diameter range. The tracked mass, grade, hardness
+and size fractions travel with the disk; the tracking id is the store's
+extrinsic attribute ``tracking_id`` when it exists, else the particle id.
+After every ``step`` the DEM positions and velocities of the held particles
+are written back into the store (x, y; z = 0).
+
+``predict(horizon, rate)`` rule: the feeder takes the held mass in the order
+of a *funnel distance* from the nearest outlet centre,
+``s = sqrt((dx / funnel_slope)^2 + y^2)`` (funnel flow draws a narrow
+column above the outlet first; ``funnel_slope`` = 0.5 by default means a
+disk 1 m to the side counts like one 2 m higher). The predicted feed is the
+mass ``rate * horizon`` (plus the feeder's current credit) taken in that
+order, as in the base class.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cosim.errors import ValidationError
+from cosim.storage import StorageModel, check_discharge_rate
+from surrogate.dem import Dem, DemConfig
+
+
+class DemStorage(StorageModel):
+    """Stockpile storage model backed by the 2D DEM.
+
+    Parameters
+    ----------
+    config : DemConfig or dict or str, optional
+        DEM configuration (a ``DemConfig``, a dict of its fields, or the path
+        of a TOML file); default ``DemConfig()``.
+    seed : int
+        DEM seed (0).
+    inlet : int
+        Inlet at which received particles enter (0).
+    outlet : int
+        Outlet whose feeder ``step`` drives (0).
+    funnel_slope : float
+        Horizontal weight of the ``predict`` ordering [-] (0.5).
+    dem : Dem, optional
+        An existing DEM (e.g. from ``Dem.load_checkpoint``) instead of a new one.
+    """
+
+    name = "dem"
+
+    def __init__(self, config=None, seed: int = 0, inlet: int = 0, outlet: int = 0,
+                 funnel_slope: float = 0.5, dem: Dem | None = None):
+        super().__init__()
+        if dem is None:
+            if isinstance(config, dict):
+                config = DemConfig.from_dict(config)
+            elif isinstance(config, str):
+                config = DemConfig.from_toml(config)
+            dem = Dem(config, seed=seed)
+        self.dem = dem
+        self.inlet = int(inlet)
+        self.outlet = int(outlet)
+        if not funnel_slope > 0:
+            raise ValidationError("funnel_slope", "> 0", f"got {funnel_slope!r}")
+        self.funnel_slope = float(funnel_slope)
+
+    def receive(self, ids, t: float) -> None:
+        """Emit the store's particles ``ids`` into the DEM at the inlet."""
+        ids = np.asarray(ids, dtype=np.uint64).ravel()
+        if ids.size == 0:
+            return
+        slots = self.particles.slots(ids)
+        owners = self.particles.owner[slots]
+        if (owners != self.owner).any():
+            raise ValidationError("ids", f"particles owned by this storage ({self.owner})",
+                                  f"{int((owners != self.owner).sum())} owned by others")
+        names = self.particles.attribute_names
+        tracking = (self.particles.attribute("tracking_id")[slots] if "tracking_id" in names
+                    else ids)
+        self.dem.emit(self.particles.mass[slots], self.particles.grade[slots],
+                      self.particles.hardness[slots], self.particles.f[slots],
+                      np.asarray(tracking).astype(np.uint64), inlet=self.inlet, ids=ids)
+
+    def held_ids(self) -> np.ndarray:
+        """Held ids in the predicted order of leaving (funnel distance)."""
+        return self.dem.id[self._funnel_order()]
+
+    def held_mass(self) -> float:
+        return self.dem.held_mass()
+
+    def step(self, t: float, dt: float, discharge_rate: float) -> np.ndarray:
+        """Advance the DEM by ``dt`` [s] with the feeder at ``discharge_rate``
+        [kg/s]; return the ids removed by the feeder, in order of removal."""
+        self.dem.set_discharge_rate(check_discharge_rate(discharge_rate,
+                                                         self.dem.cfg.max_discharge_rate),
+                                    outlet=self.outlet)
+        self.dem.advance(dt)
+        leaving = self.dem.discharged()["id"]
+        self.sync()
+        return leaving
+
+    def sync(self) -> None:
+        """Write DEM positions/velocities of the held particles into the store (z = 0)."""
+        if self.particles is None or self.dem.n == 0:
+            return
+        slots = self.particles.slots(self.dem.id)
+        self.particles.position[slots, :2] = self.dem.pos
+        self.particles.position[slots, 2] = 0.0
+        self.particles.velocity[slots, :2] = self.dem.vel
+        self.particles.velocity[slots, 2] = 0.0
+
+    def predict(self, horizon: float, discharge_rate: float):
+        """``(ids, mass_kg)`` expected to leave within ``horizon`` [s] (funnel rule)."""
+        rate = check_discharge_rate(discharge_rate, self.dem.cfg.max_discharge_rate)
+        order = self._funnel_order()
+        masses = self.dem.mass[order]
+        budget = float(self.dem.credits[self.outlet]) + rate * float(horizon)
+        before = np.cumsum(masses) - masses
+        share = np.clip(budget - before, 0.0, masses)
+        keep = share > 0
+        return self.dem.id[order][keep], share[keep]
+
+    def _funnel_order(self) -> np.ndarray:
+        centre = self.dem.cfg.outlets[self.outlet]
+        dx = (self.dem.pos[:, 0] - centre) / self.funnel_slope
+        return np.argsort(np.hypot(dx, self.dem.pos[:, 1]), kind="stable")
