@@ -37,6 +37,8 @@ consecutive observations do not share samples.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 
@@ -61,7 +63,8 @@ def bond_work_index(work, f80, p80) -> np.ndarray:
 
 
 def bond_signals(times, power, feed: pd.DataFrame, product: pd.DataFrame,
-                 window: float = 30.0) -> pd.DataFrame:
+                 window: float = 30.0, product_flow_by_class=None,
+                 product_rate=None) -> pd.DataFrame:
     """Specific work, F80, P80, BWI and grindability at the mill over time.
 
     Parameters
@@ -75,6 +78,15 @@ def bond_signals(times, power, feed: pd.DataFrame, product: pd.DataFrame,
         the product leaving it (``time``, ``mass``, ``f0``..``f15``).
     window : float
         Moving-average window t_av [s] (default 30 s).
+    product_flow_by_class : array (T, 16), optional
+        Product mass flow per size class [kg/s] at ``times`` (e.g. the mill
+        FMU's escape rate times the charge mass per class). When given, P80
+        is taken from it, for event stores whose product events carry the
+        leaving particle's remaining size distribution rather than that of
+        the escaped mass.
+    product_rate : array (T,), optional
+        Product flow [kg/s] at ``times`` (e.g. the mill's recorded output);
+        by default the product events' masses per window.
 
     Returns a DataFrame with ``time``, ``power_w``, ``product_rate_kg_s``,
     ``work_j_kg``, ``f80_m``, ``p80_m``, ``bwi_kwh_t`` and ``grindability_t_kwh``.
@@ -83,8 +95,10 @@ def bond_signals(times, power, feed: pd.DataFrame, product: pd.DataFrame,
         raise ValidationError("window", "> 0 s", f"got {window!r}")
     times = np.asarray(times, dtype=np.float64)
     power_avg = moving_average(power, times, window)
-    out_mass = windowed_sums(product["time"], product["mass"], times, window)
-    rate = out_mass / window
+    if product_rate is None:
+        rate = windowed_sums(product["time"], product["mass"], times, window) / window
+    else:
+        rate = moving_average(product_rate, times, window)
 
     def d80(rows: pd.DataFrame) -> np.ndarray:
         mf = windowed_sums(rows["time"], rows[F_COLUMNS].to_numpy() * rows["mass"].to_numpy()[:, None],
@@ -96,7 +110,21 @@ def bond_signals(times, power, feed: pd.DataFrame, product: pd.DataFrame,
             out[ok] = d_passing(mf[ok] / total[ok, None], 0.8)
         return out
 
-    f80, p80 = d80(feed), d80(product)
+    f80 = d80(feed)
+    if product_flow_by_class is None:
+        p80 = d80(product)
+    else:
+        flow = np.asarray(product_flow_by_class, dtype=np.float64)
+        if flow.shape != (times.size, len(F_COLUMNS)):
+            raise ValidationError("product_flow_by_class", f"an array of shape ({times.size}, 16)",
+                                  f"got {flow.shape}")
+        avg = np.column_stack([moving_average(flow[:, k], times, window)
+                               for k in range(flow.shape[1])])
+        total = avg.sum(axis=1)
+        p80 = np.full(times.size, np.nan)
+        ok = total > 0
+        if ok.any():
+            p80[ok] = d_passing(avg[ok] / total[ok, None], 0.8)
     with np.errstate(invalid="ignore", divide="ignore"):
         work = np.where(rate > 0, power_avg / rate, np.nan)
     bwi = bond_work_index(work, f80, p80)
@@ -183,12 +211,14 @@ def reconcile(grindability, block_mass_in_mill, mill_mass, block_mass, prior,
 
 def backtrack(signals: pd.DataFrame, feed: pd.DataFrame, product: pd.DataFrame,
               block_of: pd.Series, block_mass, *, window: float = 30.0, prior=None,
-              alpha0: float = 0.1) -> dict:
+              alpha0: float = 0.1, start: float | None = None) -> dict:
     """Observed grindability at the mill backtracked to blocks (paper Figs. grindability,
     block_grindability).
 
     ``signals`` is ``bond_signals`` output; observations are taken every
-    ``window`` seconds. ``prior`` defaults to one flat value for every block,
+    ``window`` seconds from ``start`` [s] on (default: two windows after the
+    first feed, so the mill's start-up, when it fills and the product flow
+    lags the feed, is not read as grindability). ``prior`` defaults to one flat value for every block,
     the median observed grindability (an uninformed a priori estimate, so
     any structure in the result comes from the mill). Returns a dict with
     ``times`` (K,), ``block_grindability`` (K, B) history, ``alpha_sum``
@@ -202,7 +232,10 @@ def backtrack(signals: pd.DataFrame, feed: pd.DataFrame, product: pd.DataFrame,
                                   for i in range(n_blocks)])
     avg_total = moving_average(held_total, t_all, window)
     g_all = signals["grindability_t_kwh"].to_numpy()
-    pick = _every(t_all, window)
+    if start is None:
+        start = float(feed["time"].min()) + 2.0 * window if len(feed) else float(t_all[0])
+    later = np.flatnonzero(t_all >= start)
+    pick = later[_every(t_all[later], window)] if later.size else later
     g = g_all[pick]
     if prior is None:
         finite = g[np.isfinite(g)]
@@ -218,11 +251,171 @@ def backtrack(signals: pd.DataFrame, feed: pd.DataFrame, product: pd.DataFrame,
 
 
 def _every(times: np.ndarray, spacing: float) -> np.ndarray:
-    """Indices of samples spaced at least ``spacing`` [s] apart, starting one window in."""
-    picks, next_t = [], times[0] + spacing if times.size else 0.0
+    """Indices of samples spaced at least ``spacing`` [s] apart, the first one included."""
+    picks, next_t = [], times[0] if times.size else 0.0
     # a plain loop over the (few thousand) samples of a time series, not over particles
     for i, t in enumerate(times):
         if t >= next_t - 1e-9:
             picks.append(i)
             next_t = t + spacing
     return np.asarray(picks, dtype=np.int64)
+
+
+# ------------------------------------------------------------------ reproduce
+DESCRIPTION = ("Bond work index in the mill and the grindability backtracked to the 10 m "
+               "blocks of the left source's quadratic hardness profile")
+QUICK_UNTIL_S = 1800.0
+"""Simulated time of ``--quick`` [s]: the narrow-face quick run mines the 100 m profile
+in about 1,400 s; the last blocks reach the mill through the stockpile by 1,800 s."""
+FULL_UNTIL_S = 3300.0
+"""Simulated time of the full run [s]: the profile is mined by about 2,800 s."""
+BLOCK_LENGTH_M = 10.0
+"""Block size [m] (paper: 10 m)."""
+N_BLOCKS = 10
+"""Blocks over the 100 m profile."""
+ALPHA0 = 0.1
+"""Confidence in the a priori grindability (paper: alpha^0 = 0.1)."""
+CORR_LIMIT = -0.8
+"""Largest accepted correlation of block grindability with block hardness."""
+
+
+def left_blocks(particles: pd.DataFrame, source: str = "left", n_blocks: int = N_BLOCKS):
+    """Block of origin by particle id (-1 outside the first ``n_blocks``), the mined mass
+    m_i^0 [kg] and the mass-weighted true hardness of each block, from the appear events.
+
+    The scenario's block model has 10 m cells, so ``origin_block`` is the block index.
+    """
+    appear = particles[(particles["type"] == "appear") & (particles["asset"] == source)]
+    blocks = appear["origin_block"].to_numpy(np.int64)
+    blocks = np.where((blocks >= 0) & (blocks < n_blocks), blocks, -1)
+    block_of = pd.Series(blocks, index=appear["particle_id"].to_numpy())
+    inside = blocks >= 0
+    mass = np.bincount(blocks[inside], appear["mass"].to_numpy()[inside], minlength=n_blocks)
+    weighted = np.bincount(blocks[inside], (appear["mass"] * appear["hardness"]).to_numpy()[inside],
+                           minlength=n_blocks)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        hardness = np.where(mass > 0, weighted / mass, np.nan)
+    return block_of, mass, hardness
+
+
+def mill_inputs(run, window: float = 30.0):
+    """Bond signals, feed and product rows of the mill in a ``profile_run.ProfileRun``."""
+    table = run.particles
+    feed = table[(table["asset"] == "mill") & (table["type"] == "enter")]
+    product = table[(table["asset"] == "mill") & (table["type"] == "product")]
+    ts = run.timeseries
+    flow = (ts[[f"mill_fmu.escape_rate[{k}]" for k in range(16)]].to_numpy()
+            * ts[[f"mill.charge_mass[{k}]" for k in range(16)]].to_numpy())
+    signals = bond_signals(run.times, ts["mill_fmu.power"].to_numpy(), feed, product,
+                           window=window, product_flow_by_class=flow,
+                           product_rate=ts["mill.product_rate_kg_s"].to_numpy())
+    return signals, feed, product
+
+
+def analyse(run, window: float = 30.0) -> tuple[dict, dict]:
+    """Bond signals and block reconciliation on a run; (summary, plot data)."""
+    signals, feed, product = mill_inputs(run, window)
+    block_of, mass, hardness = left_blocks(run.particles)
+    mined = mass > 0
+    index = np.flatnonzero(mined)
+    # only mined blocks take part (m_i^0 > 0); keep their original numbers
+    renumber = np.full(N_BLOCKS, -1)
+    renumber[index] = np.arange(index.size)
+    local = pd.Series(np.where(block_of.to_numpy() >= 0,
+                               renumber[np.clip(block_of.to_numpy(), 0, None)], -1),
+                      index=block_of.index)
+    result = backtrack(signals, feed, product, local, mass[mined], window=window, alpha0=ALPHA0)
+    enough = result["alpha_sum"][-1] >= ALPHA0
+    final = result["final"]
+    corr = (float(np.corrcoef(final[enough], hardness[mined][enough])[0, 1])
+            if enough.sum() >= 3 else float("nan"))
+    bwi = signals["bwi_kwh_t"].to_numpy()
+    summary = {
+        "block_grindability": {int(i): float(g) for i, g in zip(index, final)},
+        "block_hardness": {int(i): float(h) for i, h in zip(index, hardness[mined])},
+        "block_alpha_sum": {int(i): float(a) for i, a in zip(index, result["alpha_sum"][-1])},
+        "blocks_with_enough_mass": [int(i) for i in index[enough]],
+        "corr_grindability_vs_hardness": corr,
+        "prior_grindability_t_kwh": float(result["prior"][0]),
+        "bwi_mean_kwh_t": float(np.nanmean(bwi)),
+        "bwi_min_kwh_t": float(np.nanmin(bwi)), "bwi_max_kwh_t": float(np.nanmax(bwi)),
+        "f80_mean_m": float(np.nanmean(signals["f80_m"])),
+        "p80_mean_m": float(np.nanmean(signals["p80_m"])),
+        "specific_work_mean_j_kg": float(np.nanmean(signals["work_j_kg"])),
+        "window_s": window, "alpha0": ALPHA0, "block_length_m": BLOCK_LENGTH_M,
+    }
+    return summary, {"signals": signals, "result": result, "index": index,
+                     "hardness": hardness[mined], "enough": enough}
+
+
+def plot(data: dict, out) -> list:
+    """Figures in the spirit of the paper's "grindability" and "block_grindability"."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    signals, result = data["signals"], data["result"]
+    fig, (ax, bx) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    ax.plot(signals["time"], signals["bwi_kwh_t"], lw=0.8, color="k",
+            label="BWI measured in the mill (30 s averages)")
+    ax.set_ylabel("BWI [kWh/t]")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    for j, i in enumerate(data["index"]):
+        bx.plot(result["times"], 1.0 / result["block_grindability"][:, j], lw=1.0,
+                label=f"block {i}")
+    bx.set_ylabel("backtracked 1/G_i [kWh/t]")
+    bx.set_xlabel("time [s]")
+    bx.legend(fontsize=7, ncol=5)
+    bx.grid(alpha=0.3)
+    fig.tight_layout()
+    paths = [out / "grindability.png"]
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+
+    centres = (data["index"] + 0.5) * BLOCK_LENGTH_M
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.bar(centres, result["final"], width=0.8 * BLOCK_LENGTH_M, color=np.where(
+        data["enough"], "tab:orange", "lightgray"), label="backtracked grindability G_i")
+    ax.axhline(result["prior"][0], color="gray", ls=":", lw=1, label="a priori G_i^0 (flat)")
+    ax.set_xlabel("block centre along the left ore body [m]")
+    ax.set_ylabel("grindability G = 1/BWI [t/kWh]")
+    lo = np.nanmin(result["final"])
+    ax.set_ylim(lo - 0.2 * (np.nanmax(result["final"]) - lo + 1e-12), None)
+    twin = ax.twinx()
+    twin.plot(centres, data["hardness"], "o-", color="tab:blue", label="block hardness")
+    twin.set_ylabel("hardness [-]", color="tab:blue")
+    ax.legend(fontsize=8, loc="lower center")
+    fig.tight_layout()
+    paths.append(out / "block_grindability.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+    return paths
+
+
+def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int | None = None):
+    """Run the quadratic-profile scenario and backtrack the grindability; (summary, failed)."""
+    import json
+
+    from cosim.analyses.profile_run import run_profile, scenario_config
+
+    out = Path(out_dir)
+    until = QUICK_UNTIL_S if quick else FULL_UNTIL_S
+    run = run_profile(out / "run", until=until, config=scenario_config(quick=quick), seed=seed,
+                      progress=progress)
+    summary, data = analyse(run)
+    summary.update(quick=quick, simulated_s=until, seed=run.config["simulation"]["seed"],
+                   wall_s=run.run_summary["wall_s"],
+                   figures=[p.name for p in plot(data, out)])
+    failed = []
+    if len(summary["blocks_with_enough_mass"]) < N_BLOCKS:
+        failed.append(f"only {len(summary['blocks_with_enough_mass'])} of {N_BLOCKS} blocks "
+                      "reached the mill with enough mass")
+    if not summary["corr_grindability_vs_hardness"] <= CORR_LIMIT:
+        failed.append(f"corr_grindability_vs_hardness = "
+                      f"{summary['corr_grindability_vs_hardness']:.3f} > {CORR_LIMIT}")
+    summary["checks_failed"] = failed
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    return summary, failed

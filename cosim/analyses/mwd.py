@@ -30,13 +30,16 @@ event store.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 from scipy import optimize
 
+from cosim import blockmodel
 from cosim.analyses.tracking import F_COLUMNS, occupancy_sum
 from cosim.errors import ValidationError
+from cosim.master import Component
 from cosim.sizes import DIAMETERS
 
 CRUSHER_GAP = 0.25
@@ -172,3 +175,215 @@ def hardness_prediction_rmse(stays: pd.DataFrame, mwd: pd.Series, beta: float) -
     mass = stays["mass"].to_numpy()
     err = predicted - stays["hardness"].to_numpy()
     return float(np.sqrt(np.sum(mass * err ** 2) / np.sum(mass)))
+
+
+class MwdSurvey(Component):
+    """Records the MWD signal of every new particle as its extrinsic attribute ``mwd``.
+
+    Paper section "Identification of hardness from measurement-while-
+    drilling": s_n = h(x_n + R(-dx, dx))**beta, with x_n the particle's
+    position of origin along the mining direction, h the source's hardness
+    profile, beta the true exponent (0.4) and dx the half-width [m] of the
+    uniform location error (12.5 m). Added to a master after the assets, it
+    finds the particles that appeared during the step (ids above the last
+    seen), assigns each to the source whose ore body contains its origin,
+    writes ``mwd`` into the particle store and keeps a log (``table()``:
+    source, local origin x [m], mwd, by particle id) that outlives the
+    particles.
+
+    Parameters
+    ----------
+    particles : ParticleStore
+    sources : dict
+        name -> source asset with ``origin`` (3,) [m], ``length``,
+        ``face_width``, ``face_height`` [m] and ``hardness`` (callable of the
+        local coordinate x [m]).
+    beta : float
+        True exponent of s = h**beta [-] (default 0.4).
+    location_error : float
+        Half-width dx [m] of the location error (default 12.5).
+    rng : numpy.random.Generator
+        Seeded generator of the location errors.
+    """
+
+    name = "mwd_survey"
+
+    def __init__(self, particles, sources: dict, *, beta: float = 0.4,
+                 location_error: float = 12.5, rng: np.random.Generator):
+        super().__init__()
+        if not (np.isfinite(beta) and beta > 0):
+            raise ValidationError("beta", "finite and > 0", f"got {beta!r}")
+        if not (np.isfinite(location_error) and location_error >= 0):
+            raise ValidationError("location_error", "finite and >= 0 m",
+                                  f"got {location_error!r}")
+        self.particles = particles
+        self.sources = dict(sources)
+        self.beta = float(beta)
+        self.location_error = float(location_error)
+        self.rng = rng
+        particles.add_attribute("mwd")
+        self._next_id = 0
+        self._log: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def step(self, t: float, dt: float) -> None:
+        store = self.particles
+        new = np.flatnonzero(store.id >= self._next_id)
+        if new.size == 0:
+            return
+        self._next_id = int(store.id[new].max()) + 1
+        signal = np.full(new.size, np.nan)
+        source_index = np.full(new.size, -1, dtype=np.int64)
+        local_x = np.full(new.size, np.nan)
+        for k, source in enumerate(self.sources.values()):
+            local = store.origin[new] - np.asarray(source.origin, dtype=float)
+            size = np.array([source.length, source.face_width, source.face_height])
+            inside = np.all((local >= -1e-9) & (local <= size + 1e-9), axis=1)
+            if inside.any():
+                x = local[inside, 0]
+                signal[inside] = blockmodel.mwd_signal(
+                    source.hardness, x, beta=self.beta, location_error=self.location_error,
+                    rng=self.rng)
+                source_index[inside] = k
+                local_x[inside] = x
+        store.attribute("mwd")[new] = signal
+        self._log.append((store.id[new].astype(np.int64), source_index, local_x, signal))
+
+    def table(self) -> pd.DataFrame:
+        """Particle id -> ``source`` (name), ``x`` (local origin [m]) and ``mwd`` [-]."""
+        names = np.array(list(self.sources) + [""], dtype=object)
+        if not self._log:
+            return pd.DataFrame({"source": [], "x": [], "mwd": []},
+                                index=pd.Index([], name="particle_id"))
+        ids, index, x, signal = (np.concatenate(parts) for parts in zip(*self._log))
+        return pd.DataFrame({"source": names[index], "x": x, "mwd": signal},
+                            index=pd.Index(ids, name="particle_id"))
+
+
+# ------------------------------------------------------------------ reproduce
+DESCRIPTION = ("hardness from MWD: fit beta of s = h**beta from the crusher torque and the "
+               "tracked origins, predict the hardness entering the crusher")
+QUICK_UNTIL_S = 1500.0
+"""Simulated time of ``--quick`` [s]: the narrow-face quick run mines the profile's rise
+and peak (h from 1 to 2) by then."""
+FULL_UNTIL_S = 2600.0
+"""Simulated time of the full run [s]: 2,500 s of sampling after the first dump."""
+BETA_TOLERANCE = 0.01
+"""|beta_fit - 0.4| allowed with the paper's 12.5 m location error."""
+
+
+def analyse(run, betas_shown=(0.3, 0.5)) -> tuple[dict, dict]:
+    """Fit and prediction on a ``profile_run.ProfileRun``; (summary, plot data)."""
+    from cosim.analyses.profile_run import MWD_BETA
+    from cosim.analyses.tracking import residence_intervals
+
+    times = run.times
+    torque = run.timeseries["crusher_fmu.torque"].to_numpy()
+    stays = residence_intervals(run.particles, "crusher_zone")
+    signal = run.survey["mwd"]
+    fit = fit_mwd_exponent(times, torque, stays, signal)
+    frame = zone_hardness(stays, signal, times, [fit.beta, 0.42])
+    occupied = frame["hardness_true"].notna()
+    err = (frame.loc[occupied, f"hardness_beta_{fit.beta:g}"]
+           - frame.loc[occupied, "hardness_true"])
+    summary = {
+        "beta_fit": fit.beta, "beta_true": MWD_BETA,
+        "beta_rel_error": abs(fit.beta - MWD_BETA) / MWD_BETA,
+        "torque_fit_rmse_nm": fit.rmse, "torque_samples": fit.samples,
+        "hardness_prediction_rmse": float(np.sqrt(np.mean(err ** 2))),
+        "particle_hardness_rmse": hardness_prediction_rmse(stays, signal, fit.beta),
+        "crusher_zone_particles": int(len(stays)),
+        "sampling_s": float(times[occupied.to_numpy()][-1] - times[occupied.to_numpy()][0]),
+    }
+    models = {b: expected_torque(stays, mwd_of(stays, signal), b, times)
+              for b in sorted({*betas_shown, round(fit.beta, 3)})}
+    return summary, {"times": times, "torque": torque, "models": models, "zone": frame,
+                     "fit": fit}
+
+
+def plot(run, data: dict, summary: dict, out) -> list:
+    """The paper's figures hardness_vs_MWD_tracking_error, crusher_observed_torque_models and
+    crusher_torque_to_hardness, as PNG files in ``out``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    paths = []
+    left = run.survey[run.survey["source"] == "left"]
+    x = np.linspace(0.0, max(float(left["x"].max()), 1.0), 400)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(left["x"], left["mwd"], ".", ms=2, color="tab:green", alpha=0.5,
+            label="MWD signal s_n (12.5 m location error)")
+    ax.plot(x, run.profiles["left"](x), color="tab:blue", label="hardness h(x)")
+    ax.plot(x, run.profiles["left"](x) ** summary["beta_true"], color="k", lw=0.8, ls="--",
+            label="h(x)^0.4")
+    ax.set_xlabel("origin x along the left ore body [m]")
+    ax.set_ylabel("hardness, MWD signal [-]")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    paths.append(out / "hardness_vs_mwd_tracking_error.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+
+    times, torque = data["times"], data["torque"]
+    # a window with four truck loads (two per source), where the profile is hard
+    hard_t = times[np.nanargmax(data["zone"]["hardness_true"].to_numpy())]
+    shown = (times >= hard_t - 60.0) & (times <= hard_t + 60.0)
+    fig, ax = plt.subplots(figsize=(10, 4))
+    ax.plot(times[shown], torque[shown], color="k", lw=1.5, label="observed torque")
+    for b, model in data["models"].items():
+        ax.plot(times[shown], model[shown], lw=0.9, label=f"ansatz s = h^beta, beta = {b:g}")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("crusher torque [N m]")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    paths.append(out / "crusher_observed_torque_models.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+
+    zone = data["zone"]
+    fig, ax = plt.subplots(figsize=(10, 4))
+    ax.plot(zone["time"], zone["hardness_true"], color="k", lw=1.2, label="true hardness")
+    beta = data["fit"].beta
+    ax.plot(zone["time"], zone[f"hardness_beta_{beta:g}"], lw=0.8,
+            label=f"predicted from MWD, beta = {beta:.3f} (fit)")
+    ax.plot(zone["time"], zone["hardness_beta_0.42"], lw=0.8, label="predicted, beta = 0.42")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("hardness in the crusher zone [-]")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    paths.append(out / "crusher_torque_to_hardness.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+    return paths
+
+
+def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
+              location_error: float | None = None, seed: int | None = None):
+    """Run the quadratic-profile scenario and identify beta; (summary, failed checks)."""
+    import json
+
+    from cosim.analyses.profile_run import (MWD_BETA, MWD_LOCATION_ERROR_M, run_profile,
+                                            scenario_config)
+
+    out = Path(out_dir)
+    error = MWD_LOCATION_ERROR_M if location_error is None else float(location_error)
+    until = QUICK_UNTIL_S if quick else FULL_UNTIL_S
+    run = run_profile(out / "run", until=until, config=scenario_config(quick=quick),
+                      location_error=error, seed=seed, progress=progress)
+    summary, data = analyse(run)
+    summary.update(quick=quick, simulated_s=until, location_error_m=error,
+                   seed=run.config["simulation"]["seed"], wall_s=run.run_summary["wall_s"],
+                   figures=[p.name for p in plot(run, data, summary, out)])
+    tolerance = BETA_TOLERANCE if error > 0 else BETA_TOLERANCE / 2
+    failed = []
+    if not abs(summary["beta_fit"] - MWD_BETA) <= tolerance:
+        failed.append(f"|beta_fit - {MWD_BETA}| = {abs(summary['beta_fit'] - MWD_BETA):.4f} "
+                      f"> {tolerance}")
+    summary["checks_failed"] = failed
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    return summary, failed
