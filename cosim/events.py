@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import sqlite3
 from dataclasses import dataclass
-from itertools import repeat
 from pathlib import Path
 
 import numpy as np
@@ -104,27 +103,49 @@ class EventStore:
     def record_batch(self, type: str, asset: str, time: float, batch: dict,
                      location=(0.0, 0.0, 0.0)) -> int:
         """Record an event about a particle batch (dict with ``id`` and the state fields)."""
-        if type not in EVENT_TYPES:
-            raise ValidationError("type", f"one of {list(EVENT_TYPES)}", f"got {type!r}")
-        if not np.isfinite(time):
-            raise ValidationError("time", "finite seconds", f"got {time!r}")
-        event_id = self._next_event_id
-        self._next_event_id += 1
+        counts = [int(np.asarray(batch["id"]).size)]
+        return int(self.record_many([type], [asset], [time], [location], counts, batch)[0])
+
+    def record_many(self, types, assets, times, locations, counts, batch) -> np.ndarray:
+        """Record several events at once; returns their event ids.
+
+        Event k is ``types[k]`` by ``assets[k]`` at ``times[k]`` [s] and
+        ``locations[k]`` [m] and involves ``counts[k]`` particles: the next
+        ``counts[k]`` rows of ``batch`` (the events' particle batches
+        concatenated in order). One call per many events keeps the Python
+        cost per event small for simulators that emit events every step.
+        """
+        for type in set(types):
+            if type not in EVENT_TYPES:
+                raise ValidationError("type", f"one of {list(EVENT_TYPES)}", f"got {type!r}")
+        times = np.asarray(times, dtype=np.float64)
+        if not np.all(np.isfinite(times)):
+            raise ValidationError("time", "finite seconds",
+                                  f"got {times[~np.isfinite(times)][0]!r}")
+        counts = np.asarray(counts, dtype=np.int64)
         ids = np.asarray(batch["id"], dtype=np.int64)
-        x, y, z = (float(c) for c in location)
-        self._event_rows.append((event_id, type, asset, x, y, z, float(time), int(ids.size)))
+        if counts.sum() != ids.size:
+            raise ValidationError("counts", f"summing to the batch size {ids.size}",
+                                  f"sum {int(counts.sum())}")
+        event_ids = np.arange(self._next_event_id, self._next_event_id + counts.size)
+        self._next_event_id += counts.size
+        xyz = np.asarray(locations, dtype=np.float64).reshape(-1, 3)
+        self._event_rows.extend(zip(
+            event_ids.tolist(), types, assets, xyz[:, 0].tolist(), xyz[:, 1].tolist(),
+            xyz[:, 2].tolist(), times.tolist(), counts.tolist()))
         if ids.size:
             pos = np.asarray(batch["position"], dtype=np.float64)
             f = np.ascontiguousarray(batch["f"], dtype=np.float64)
             self._particle_rows.extend(zip(
-                repeat(event_id), ids.tolist(), np.asarray(batch["mass"]).tolist(),
+                np.repeat(event_ids, counts).tolist(), ids.tolist(),
+                np.asarray(batch["mass"]).tolist(),
                 pos[:, 0].tolist(), pos[:, 1].tolist(), pos[:, 2].tolist(),
                 np.asarray(batch["grade"]).tolist(), np.asarray(batch["hardness"]).tolist(),
                 np.asarray(batch["origin_block"]).tolist(),
                 [row.tobytes() for row in f]))
         if len(self._particle_rows) >= self._batch_rows:
             self.flush()
-        return event_id
+        return event_ids
 
     def flush(self) -> None:
         """Write buffered events in one transaction."""

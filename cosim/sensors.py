@@ -52,7 +52,9 @@ class Box:
 
 
 def _as_columns(values: np.ndarray) -> np.ndarray:
-    return values.reshape(values.shape[0], -1).astype(np.float64, copy=False)
+    # explicit column count: reshape(-1) is ambiguous for an empty store
+    columns = int(np.prod(values.shape[1:]))
+    return values.reshape(values.shape[0], columns).astype(np.float64, copy=False)
 
 
 def observe(store, attribute: str, *, box: Box | None = None, owner: int | None = None,

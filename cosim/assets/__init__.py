@@ -1,0 +1,247 @@
+"""Virtual assets of the 2D mine simulator, each a co-simulation ``Component``.
+
+Source: paper section "Digital twin as a distributed particle simulation"
+(every asset a is an operator u_a(t, dt) on the particles it holds; macro-
+tracking events at asset boundaries; virtual sensors, eq. "observation") and
+section "Simulator" (two sources, haul trucks, jaw crusher, belt conveyors,
+stockpile, mill).
+
+All assets of a scenario share one ``Plant``: one ``ParticleStore`` (an
+asset's particles are those whose ``owner`` is the asset's index), one
+``EventStore`` and one seeded generator. Moving particles between assets is
+``Asset.receive``: the owner index changes and an event is recorded; no
+particle data is copied. Assets hand particles downstream inside their own
+``step``; the master steps them in plant order (source to mill), so material
+handed on is processed downstream in the same communication step.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from cosim.errors import ValidationError
+from cosim.events import PARTICLE_FIELDS
+from cosim.master import Component
+from cosim.sizes import N_CLASSES, mean_diameter
+
+
+EVENT_FIELDS = ("id",) + PARTICLE_FIELDS
+"""Particle fields captured with each event (those the event store keeps)."""
+EVENT_BUFFER_ROWS = 20_000
+"""Particle rows buffered by the plant before they go to the event store."""
+
+
+class Plant:
+    """What every asset of one scenario shares.
+
+    Parameters
+    ----------
+    particles : cosim.particles.ParticleStore
+        The one particle store of the scenario.
+    events : cosim.events.EventStore or None
+        Where macro-tracking events go (None: not recorded).
+    rng : numpy.random.Generator
+        The scenario's seeded generator.
+
+    Attributes ``mass_in`` [kg] (all mass that appeared) and ``mass_out``
+    [kg] (all mass that left as product) are the plant-wide balance terms;
+    ``removed_ids`` lists the particles that left the plant entirely.
+    """
+
+    def __init__(self, particles, events=None, rng: np.random.Generator | None = None):
+        self.particles = particles
+        self.events = events
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self.owner_names: list[str] = []
+        self.mass_in = 0.0
+        self.mass_out = 0.0
+        self.particles_created = 0
+        self._removed: list[np.ndarray] = []
+        self._event_meta: list[tuple] = []
+        self._event_batches: list[dict] = []
+        self._buffered_rows = 0
+
+    def register(self, name: str) -> int:
+        """A new owner index for the particle holder called ``name``."""
+        if name in self.owner_names:
+            raise ValidationError("name", "unique among the plant's assets", f"{name!r} exists")
+        self.owner_names.append(name)
+        return len(self.owner_names) - 1
+
+    def owner_of(self, name: str) -> int:
+        """Owner index of the holder called ``name``."""
+        try:
+            return self.owner_names.index(name)
+        except ValueError:
+            raise ValidationError("owner", f"one of {self.owner_names}", f"got {name!r}") from None
+
+    def record(self, type: str, asset: str, t: float, slots, location) -> None:
+        """Record a macro-tracking event about ``slots`` (skipped when empty).
+
+        The particles' state is captured now; events are buffered and written
+        to the event store in batches (``flush_events``).
+        """
+        if self.events is not None and len(slots):
+            self.record_batch(type, asset, t,
+                              self.particles.gather(slots, fields=EVENT_FIELDS), location)
+
+    def record_batch(self, type: str, asset: str, t: float, batch: dict, location) -> None:
+        """Record an event about a gathered particle batch (skipped when empty)."""
+        if self.events is None or not len(batch["id"]):
+            return
+        self._event_meta.append((type, asset, float(t), tuple(location), len(batch["id"])))
+        self._event_batches.append(batch)
+        self._buffered_rows += len(batch["id"])
+        if self._buffered_rows >= EVENT_BUFFER_ROWS:
+            self.flush_events()
+
+    def flush_events(self) -> None:
+        """Hand the buffered events to the event store in one call."""
+        if self.events is None or not self._event_meta:
+            return
+        types, assets, times, locations, counts = zip(*self._event_meta)
+        batch = {name: np.concatenate([b[name] for b in self._event_batches])
+                 for name in EVENT_FIELDS}
+        self.events.record_many(types, assets, times, locations, counts, batch)
+        self._event_meta.clear()
+        self._event_batches.clear()
+        self._buffered_rows = 0
+
+    def note_removed(self, ids: np.ndarray) -> None:
+        """Remember ids of particles that left the plant (for id accounting)."""
+        if ids.size:
+            self._removed.append(np.asarray(ids, dtype=np.uint64).copy())
+
+    @property
+    def removed_ids(self) -> np.ndarray:
+        return (np.concatenate(self._removed) if self._removed
+                else np.empty(0, dtype=np.uint64))
+
+
+class Asset(Component):
+    """A virtual asset: a ``Component`` that holds particles of the shared store.
+
+    Parameters
+    ----------
+    name : str
+        Asset name (component name, event asset name and owner name).
+    plant : Plant
+        The shared plant.
+    location : (3,) array_like
+        Where the asset's events are located [m] (its inlet).
+    """
+
+    def __init__(self, name: str, plant: Plant, location=(0.0, 0.0, 0.0)):
+        super().__init__()
+        self.name = name
+        self.plant = plant
+        self.owner = plant.register(name)
+        self.location = tuple(float(c) for c in location)
+
+    @property
+    def particles(self):
+        return self.plant.particles
+
+    def held_slots(self) -> np.ndarray:
+        """Slots of the particles this asset holds."""
+        return np.flatnonzero(self.particles.owner == self.owner)
+
+    def held_mass(self) -> float:
+        return float(self.particles.mass[self.particles.owner == self.owner].sum())
+
+    def receive(self, ids: np.ndarray, t: float) -> None:
+        """Take over particles ``ids`` at time ``t``: new owner and an "enter" event."""
+        if ids.size == 0:
+            return
+        slots = self.particles.slots(ids)
+        self.particles.set_owner(slots, self.owner, t)
+        self.particles.position[slots] = self.location
+        self.plant.record("enter", self.name, t, slots, self.location)
+        self._accept(ids, t)
+
+    def _accept(self, ids: np.ndarray, t: float) -> None:
+        """Hook: queue the received particles (subclasses)."""
+
+
+class AssetSensors:
+    """Virtual sensors of hardness, grade and size over one owner's particles.
+
+    Paper eq. (observation): the mass-weighted mean of an attribute over the
+    particles in a volume (here: the particles an asset holds),
+    sum m_n p_n / sum m_n, with a moving average of window t_w [s] (default
+    30 s, the paper's figures); empty samples are left out of the average.
+    It is ``cosim.sensors.observe`` for the three attributes at once: one
+    owner mask and one gather per sample instead of three, because it runs
+    every step for three assets. Outputs per sample: ``hardness``, ``hardness_avg``, ``grade``, ``grade_avg`` [-] and
+    ``d_mean``, ``d_mean_avg`` [m], the mean particle diameter d . f of the
+    (averaged) size distribution (paper, same section); NaN while empty.
+    """
+
+    def __init__(self, owner: int, window: float = 30.0):
+        self.owner = owner
+        self.window = float(window)
+        self._samples: deque = deque()
+        self._sum = np.zeros(N_CLASSES + 2)
+        self.readings = self._empty()
+
+    @staticmethod
+    def _empty() -> dict[str, float]:
+        return {key: float("nan") for key in ("hardness", "hardness_avg", "grade", "grade_avg",
+                                              "d_mean", "d_mean_avg")}
+
+    def sample(self, particles, t: float) -> dict[str, float]:
+        slots = np.flatnonzero(particles.owner == self.owner)
+        mass = particles.mass[slots]
+        total = float(mass.sum())
+        readings = self._empty()
+        if total > 0:
+            # [hardness, grade, f_0..f_15], mass-weighted
+            value = np.empty(N_CLASSES + 2)
+            value[0] = mass @ particles.hardness[slots]
+            value[1] = mass @ particles.grade[slots]
+            value[2:] = mass @ particles.f[slots]
+            value /= total
+            self._samples.append((t, value))
+            self._sum += value
+            readings.update(hardness=float(value[0]), grade=float(value[1]),
+                            d_mean=float(mean_diameter(value[2:])))
+        while self._samples and self._samples[0][0] <= t - self.window:
+            self._sum -= self._samples.popleft()[1]
+        if self._samples:
+            average = self._sum / len(self._samples)
+            readings.update(hardness_avg=float(average[0]), grade_avg=float(average[1]),
+                            d_mean_avg=float(mean_diameter(average[2:])))
+        else:
+            self._sum[:] = 0.0
+        self.readings = readings
+        return readings
+
+
+class PlantBalance(Component):
+    """Plant-wide mass balance and particle count, recorded every step.
+
+    mass in (everything that appeared at the sources) = mass held by all
+    assets (the particle store's total) + mass out (product). Outputs
+    ``mass_in_kg``, ``mass_held_kg``, ``mass_out_kg``,
+    ``mass_balance_rel_error`` = |in - held - out| / in (0 before any mass
+    appeared) and ``particles`` (count held). Add it last, so it sees every
+    asset's step.
+    """
+
+    def __init__(self, plant: Plant, name: str = "plant"):
+        super().__init__()
+        self.name = name
+        self.plant = plant
+
+    def outputs(self) -> dict[str, float]:
+        held = float(self.plant.particles.mass.sum())
+        mass_in, mass_out = self.plant.mass_in, self.plant.mass_out
+        error = abs(mass_in - held - mass_out) / mass_in if mass_in > 0 else 0.0
+        return {"mass_in_kg": mass_in, "mass_held_kg": held, "mass_out_kg": mass_out,
+                "mass_balance_rel_error": error,
+                "particles": float(len(self.plant.particles))}
+
+    def step(self, t: float, dt: float) -> None:
+        """Nothing to advance: the balance is read from the plant."""

@@ -1,0 +1,53 @@
+"""``minetwin reproduce NAME``: reproduce one of the paper's results.
+
+Each NAME maps to a module (``REPRODUCTIONS``) exposing ``DESCRIPTION`` and
+``reproduce(out_dir, *, quick, progress) -> (summary, failed_checks)``; the
+module writes its figures and ``out_dir/summary.json``. Other analyses add
+their NAME here.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import sys
+from pathlib import Path
+
+REPRODUCTIONS: dict[str, str] = {
+    "step-response": "cosim.analyses.step_response",
+    "mwd": "cosim.analyses.mwd",
+    "feed-prediction": "cosim.analyses.feed_prediction",
+    "grindability": "cosim.analyses.grindability",
+    "sensitivity": "cosim.analyses.sensitivity",
+}
+"""Reproducible results by name -> module path."""
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "reproduce", help="reproduce a result of the paper (figures + summary.json)",
+        description="Reproduce a result of the paper. NAMEs: " + ", ".join(REPRODUCTIONS)
+        + ". Writes PNG figures and DIR/summary.json; exit code 1 when the paper's "
+          "mechanism does not show (the failed checks are printed).")
+    parser.add_argument("name", choices=sorted(REPRODUCTIONS), metavar="NAME",
+                        help=f"one of {', '.join(sorted(REPRODUCTIONS))}")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    parser.add_argument("--quick", action="store_true", help="shorter runs (for tests/CI)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.set_defaults(handler=run)
+
+
+def run(args) -> int:
+    from cosim.master import CosimulationError
+
+    module = importlib.import_module(REPRODUCTIONS[args.name])
+    try:
+        summary, failed = module.reproduce(args.out, quick=args.quick, progress=not args.quiet)
+    except CosimulationError as exc:
+        print(f"minetwin reproduce: run failed: {exc}", file=sys.stderr)
+        return 1
+    print(json.dumps(summary, indent=2, sort_keys=True))
+    print(args.out / "summary.json")
+    for problem in failed:
+        print(f"minetwin reproduce {args.name}: check failed: {problem}", file=sys.stderr)
+    return 1 if failed else 0
