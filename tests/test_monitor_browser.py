@@ -138,6 +138,12 @@ def test_monitor_page_against_a_running_stockpile(processes, tmp_path):
             assert shown["gradeText"] == f"{row['grade'] * 100:.2f}"
             assert int(page.locator("#pile").get_attribute("data-drawn")) > 0
 
+            # the monitor passes the stockpile's refusals through, and only its endpoints
+            status, body = get(monitor_url + "api/fields?nx=0")
+            assert status == 400 and body["field"] == "nx"
+            status, body = get(monitor_url + "api/shutdown")
+            assert status == 404 and body["field"] == "endpoint"
+
             # switching the colouring redraws the pile with the new attribute
             pile = page.locator("#pile")
             before = page.evaluate("document.getElementById('pile').toDataURL()")
@@ -197,3 +203,23 @@ def test_monitor_page_against_a_running_stockpile(processes, tmp_path):
         Path(copy_to).mkdir(parents=True, exist_ok=True)
         for shot in shots:
             shutil.copy(shot, Path(copy_to) / shot.name)
+
+
+def test_monitor_command_refuses_a_bad_stockpile_url():
+    done = subprocess.run([MINETWIN, "monitor", "--stockpile", "ftp://127.0.0.1:1", "--port", "0"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    assert "stockpile: must be an http:// or https:// URL" in done.stderr
+
+
+def test_monitor_command_fails_on_a_busy_port():
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        done = subprocess.run([MINETWIN, "monitor", "--stockpile", "http://127.0.0.1:9",
+                               "--port", str(port)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1
+    assert f"cannot serve on 127.0.0.1:{port}" in done.stderr

@@ -1,0 +1,98 @@
+"""Run a stockpile and the monitor, and save what the control room sees.
+
+Starts two real processes on 127.0.0.1: a stockpile serving its REST
+interface (``python -m monitor.demo_stockpile``, or any stockpile URL given
+with ``--stockpile``) and the monitor (``minetwin monitor``); lets the
+simulation run, then opens the page in Debian's chromium (Playwright) and
+saves ``OUT/monitor.png`` (coloured by grade) and ``OUT/monitor_origin.png``
+(coloured by origin). Everything is stopped at the end.
+
+    .venv/bin/python examples/monitor_demo.py --out out/monitor [--seconds 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--no-first-run"]
+
+
+def start(args, pattern, stream):
+    """Start a process; return it and the first match of ``pattern`` in its output."""
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for line in getattr(proc, stream):
+        match = re.search(pattern, line)
+        if match:
+            return proc, match.group(0)
+    proc.wait()
+    raise SystemExit(f"{args[0]} stopped before serving: {proc.stderr.read()}")
+
+
+def stop(proc):
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("out/monitor"), help="output folder")
+    parser.add_argument("--seconds", type=float, default=20.0,
+                        help="wall seconds to let the simulation run before the screenshots")
+    parser.add_argument("--speed", type=float, default=6.0,
+                        help="simulated seconds per wall second of the demo stockpile")
+    parser.add_argument("--stockpile", help="use a running stockpile at this URL instead")
+    args = parser.parse_args(argv)
+    if not Path(CHROMIUM).exists():
+        print(f"monitor_demo: error: {CHROMIUM} missing (apt-get install chromium)",
+              file=sys.stderr)
+        return 1
+    from playwright.sync_api import sync_playwright
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    processes = []
+    try:
+        url = args.stockpile
+        if url is None:
+            stockpile, url = start([sys.executable, "-m", "monitor.demo_stockpile", "--port", "0",
+                                    "--speed", str(args.speed)], r"http://127\.0\.0\.1:\d+",
+                                   "stdout")
+            processes.append(stockpile)
+        minetwin = str(Path(sys.executable).with_name("minetwin"))
+        monitor, page_url = start([minetwin, "monitor", "--stockpile", url, "--port", "0"],
+                                  r"http://127\.0\.0\.1:\d+/", "stderr")
+        processes.append(monitor)
+        print(f"stockpile {url}, monitor {page_url}; running {args.seconds:g} s", file=sys.stderr)
+        time.sleep(args.seconds)
+        with sync_playwright() as playwright:
+            browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+            page = browser.new_page(viewport={"width": 1600, "height": 1000})
+            page.goto(page_url)
+            page.wait_for_function("window.monitorState.updates >= 2", timeout=20_000)
+            page.screenshot(path=str(args.out / "monitor.png"), full_page=True)
+            page.select_option("#colour-by", "origin")
+            page.screenshot(path=str(args.out / "monitor_origin.png"), full_page=True)
+            shown = page.evaluate("[document.getElementById('held-mass').textContent, "
+                                  "document.getElementById('grade').textContent]")
+            browser.close()
+        print(f"held mass {shown[0]} t, grade {shown[1]} %")
+        print(args.out / "monitor.png")
+        print(args.out / "monitor_origin.png")
+    finally:
+        for proc in processes:
+            stop(proc)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
