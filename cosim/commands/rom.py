@@ -1,0 +1,86 @@
+"""``minetwin rom``: train and evaluate the reduced-order stockpile model."""
+
+from __future__ import annotations
+
+import sys
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "rom", help="train / evaluate the reduced-order stockpile model (ROM) on DEM data",
+        description="Reduced-order stockpile model (POD + ridge regression, Wallin and Servin "
+                    "2021): train it on a DEM design of experiments and score it against the "
+                    "DEM, FIFO and perfect mixing on a held-out scenario.")
+    sub = parser.add_subparsers(dest="rom_command", metavar="ACTION")
+    train = sub.add_parser("train", help="fit a ROM on a DOE directory and save the model file")
+    train.add_argument("--data", required=True, help="DOE directory (train/*.npz, doe.json)")
+    train.add_argument("--out", required=True, help="model file to write (.npz)")
+    _model_options(train)
+    train.set_defaults(handler=run_train)
+    evaluate = sub.add_parser(
+        "evaluate", help="score a ROM on the held-out DEM scenario; writes summary.json",
+        description="Score FIFO, mixing and the ROM against the DEM on the held-out scenario "
+                    "and print/write summary.json. With --quick: build a small DEM design, "
+                    "train and evaluate end to end (a few minutes).")
+    evaluate.add_argument("--model", help="model file (from `minetwin rom train`)")
+    evaluate.add_argument("--data", help="DOE directory with heldout/ runs")
+    evaluate.add_argument("--quick", action="store_true",
+                          help="build a small DOE in --out, train and evaluate")
+    evaluate.add_argument("--out", help="output directory for summary.json (and the DOE "
+                                        "with --quick); default: --data")
+    evaluate.add_argument("--seed", type=int, default=0, help="seed of the design (0)")
+    _model_options(evaluate)
+    evaluate.set_defaults(handler=run_evaluate)
+    parser.set_defaults(handler=lambda args: parser.print_help() or 2)
+
+
+def _model_options(parser) -> None:
+    parser.add_argument("--mass-modes", type=int, default=12, help="POD modes of the mass field (12)")
+    parser.add_argument("--velocity-modes", type=int, default=16,
+                        help="POD modes of the velocity field (16)")
+    parser.add_argument("--ridge", type=float, default=1e-2, help="ridge penalty lambda (1e-2)")
+
+
+def _progress(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def run_train(args) -> int:
+    from surrogate.rom.evaluate import train
+
+    model = train(args.data, args.out, args.mass_modes, args.velocity_modes, args.ridge)
+    print(f"trained on {model.n_samples} samples, grid {model.grid.nx}x{model.grid.ny}; "
+          f"wrote {args.out}")
+    return 0
+
+
+def run_evaluate(args) -> int:
+    import json
+    from pathlib import Path
+
+    from cosim.errors import ValidationError
+    from surrogate.rom.evaluate import build_data, evaluate, train, write_summary
+    from surrogate.rom.model import RomModel
+
+    if args.quick:
+        if not args.out:
+            raise ValidationError("--out", "a directory when --quick is given")
+        data = Path(args.out)
+        build_data(data, quick=True, seed=args.seed, progress=_progress)
+        model = train(data, data / "rom_model.npz", args.mass_modes, args.velocity_modes,
+                      args.ridge)
+        _progress(f"trained on {model.n_samples} samples; model {data / 'rom_model.npz'}")
+    else:
+        if not (args.model and args.data):
+            raise ValidationError("--model/--data", "both given (or use --quick --out DIR)")
+        data = Path(args.data)
+        model = RomModel.load(args.model)
+    summary = evaluate(model, data, progress=_progress)
+    path = write_summary(summary, args.out or data)
+    shown = {k: summary[k] for k in ("tracking_error", "tracking_error_dem_noise_floor",
+                                     "velocity_field_rel_error", "wall_s_per_simulated_s",
+                                     "speedup_vs_dem", "grade_error", "hardness_error")}
+    print(json.dumps(shown, indent=1))
+    print(f"wrote {path}", file=sys.stderr)
+    rom = summary["tracking_error"]["rom"]
+    return 0 if rom == rom else 1

@@ -1,0 +1,257 @@
+"""Design of experiments: DEM runs that train and test the ROM.
+
+Source: paper section "Digital twin as a distributed particle simulation"
+("run numerous DEM simulations in advance, covering the relevant
+state-space [...] using [...] control signals for in- and outflow") and
+issue 10: discharge rate, inflow rate and pile state (fill level and shape,
+pointy and depleted) are varied; fields are sampled on the ROM grid.
+
+The training stockpile (``training_config``) is a small version of the
+paper's pile, so that a design runs in minutes on a laptop core: a 44 m
+floor, one inlet 14 m above the centre, one 3 m wide feeder in the floor
+below it, disks 0.3-0.5 m (38-177 kg), piles of 70-130 t (800-1500 disks,
+7-10 m tall). The normal stiffness is lowered to 8e6 N/m, which keeps
+overlaps below ~1 % of a diameter at the base of this pile (DemConfig's
+rule) and allows a larger stable step.
+
+A scenario: from a filled pile (a checkpoint), every ``CONTROL_STEP`` [s]
+the inflow q_in * step [kg] of the current lot is emitted at the inlet, the
+feeder is set to q_out and the DEM advances; a snapshot per second gives the
+mass field M(t) and the displacement velocity field V(t -> t+1 s) on the
+grid (``surrogate.rom.grid``). Lots are ``LOT_MASS`` [kg] (about one
+truckload, the tracking ids of the accuracy metric) with hardness
+alternating 1 and 2 (paper figure "pile_states") and grades drawn
+uniformly in [0.2, 0.8].
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from cosim.sizes import swebrec
+from surrogate.rom.container import Container
+from surrogate.rom.grid import Grid, displacement_velocity_field, mass_field
+
+CONTROL_STEP = 1.0
+"""Seconds between control updates, emissions and snapshots [s]."""
+
+LOT_MASS = 15_000.0
+"""Mass of one tracked lot [kg] (about one truckload)."""
+
+FILL_RATE = 2000.0
+"""Inflow rate [kg/s] while a pile is built."""
+
+SETTLE_TIME = 10.0
+"""Seconds a new pile rests before a scenario starts [s]."""
+
+
+def training_config(**overrides):
+    """The DEM configuration of the training stockpile (module docstring)."""
+    from surrogate.dem import DemConfig
+
+    values = dict(floor_width=44.0, side_wall_height=1.0, inlets=[[0.0, 14.0]],
+                  inlet_width=1.0, outlets=[0.0], outlet_width=3.0, diameter_min=0.3,
+                  diameter_max=0.5, normal_stiffness=8.0e6)
+    values.update(overrides)
+    return DemConfig(**values)
+
+
+def container_of(cfg, areal_density: float) -> Container:
+    """The ROM's container for a DEM configuration (inlet 0, outlet 0)."""
+    half = cfg.floor_width / 2.0
+    return Container(x_min=-half, x_max=half, floor=0.0, outlet_x=float(cfg.outlets[0]),
+                     inlet_x=float(cfg.inlets[0][0]), areal_density=float(areal_density))
+
+
+def grid_of(cfg, cell_size: float = 1.0, height: float = 12.0) -> Grid:
+    """ROM grid over the pile region: the floor width x ``height`` [m]."""
+    half = cfg.floor_width / 2.0
+    return Grid.covering(-half, half, 0.0, height, cell_size)
+
+
+def areal_density(snapshot: dict, grid: Grid) -> float:
+    """Settled bulk mass per unit area [kg/m^2]: 90th percentile of full cells."""
+    field = mass_field(grid, snapshot["position"], snapshot["mass"]).ravel()
+    full = field[field > 0]
+    return float(np.percentile(full, 90) / (grid.dx * grid.dy))
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One DEM run of the design.
+
+    Parameters
+    ----------
+    name : str
+    fill : float
+        Pile mass at the start [kg].
+    discharge_rate, inflow_rate : float
+        Feeder and inflow rates [kg/s] (constant over the run).
+    duration : float
+        Simulated seconds [s].
+    """
+
+    name: str
+    fill: float
+    discharge_rate: float
+    inflow_rate: float
+    duration: float
+
+
+class LotFeed:
+    """Inflow of lots: tracking id, grade and hardness change every ``LOT_MASS`` kg."""
+
+    def __init__(self, first_tracking_id: int, seed: int):
+        self.rng = np.random.default_rng(seed)
+        self.tracking_id = int(first_tracking_id) - 1
+        self.left = 0.0
+        self.grade = self.hardness = 0.0
+
+    def take(self, mass: float):
+        """Yield ``(mass, tracking_id, grade, hardness)`` pieces making up ``mass`` [kg]."""
+        while mass > 1e-9:
+            if self.left <= 1e-9:
+                self.tracking_id += 1
+                self.left = LOT_MASS
+                self.grade = float(self.rng.uniform(0.2, 0.8))
+                self.hardness = 1.0 + (self.tracking_id % 2)
+            piece = min(mass, self.left)
+            self.left -= piece
+            mass -= piece
+            yield piece, self.tracking_id, self.grade, self.hardness
+
+
+FEED_F = swebrec(0.1, 1.0, 2.0)
+"""Size distribution given to every DEM lot (the default blast curve)."""
+
+
+def emit_lots(dem, feed: LotFeed, mass: float) -> None:
+    """Emit ``mass`` [kg] of the feed's current lot(s) at inlet 0."""
+    for piece, tid, grade, hardness in feed.take(mass):
+        dem.emit(piece, grade, hardness, FEED_F, tid, inlet=0)
+
+
+def build_pile(cfg, fill: float, seed: int, progress=None):
+    """A DEM pile of ``fill`` kg, built from the inlet and settled; its lots start at id 1."""
+    from surrogate.dem import Dem
+
+    dem = Dem(cfg, seed=seed)
+    feed = LotFeed(1, seed)
+    emitted = 0.0
+    while emitted < fill - 1e-9:
+        chunk = min(FILL_RATE * CONTROL_STEP, fill - emitted)
+        emit_lots(dem, feed, chunk)
+        emitted += chunk
+        dem.advance(CONTROL_STEP)
+        if progress:
+            progress(f"building pile: {emitted / 1e3:.0f}/{fill / 1e3:.0f} t")
+    dem.advance(SETTLE_TIME + 2.0 * np.sqrt(2.0 * cfg.inlets[0][1] / 9.81))
+    return dem, feed
+
+
+def run_scenario(dem, feed: LotFeed, discharge_rate: float, inflow_rate: float,
+                 duration: float, grid: Grid, progress=None) -> dict:
+    """Run the DEM under constant controls; return the samples and the outflow.
+
+    Returns a dict: ``time`` (S,), ``mass`` (S, ny, nx) [kg], ``velocity``
+    (S, ny, nx, 2) [m/s], ``discharge_rate``, ``inflow_rate`` (S,) [kg/s],
+    ``wall_s`` (DEM wall time [s]), ``outflow`` (time, tracking_id, mass,
+    grade, hardness per discharged particle) and ``emitted`` (the same per
+    emitted particle, as given to the inlet: ids, tracking ids, masses).
+    """
+    start_time = dem.time
+    dem.discharged()  # flush: only this run's outflow is returned
+    snapshot = dem.snapshot()
+    times, masses, velocities = [], [], []
+    wall = 0.0
+    dem.set_discharge_rate(discharge_rate, outlet=0)
+    steps = int(round(duration / CONTROL_STEP))
+    for k in range(steps):
+        tic = time.perf_counter()
+        if inflow_rate > 0:
+            emit_lots(dem, feed, inflow_rate * CONTROL_STEP)
+        dem.advance(CONTROL_STEP)
+        wall += time.perf_counter() - tic
+        after = dem.snapshot()
+        times.append(snapshot["time"])
+        masses.append(mass_field(grid, snapshot["position"], snapshot["mass"]))
+        velocities.append(displacement_velocity_field(grid, snapshot, after))
+        snapshot = after
+        if progress and (k + 1) % 10 == 0:
+            progress(f"t = {dem.time - start_time:.0f}/{duration:.0f} s, "
+                     f"held {dem.held_mass() / 1e3:.1f} t, wall {wall:.0f} s")
+    out = dem.discharged()
+    outflow = {key: np.asarray(out[key])
+               for key in ("id", "tracking_id", "mass", "grade", "hardness", "time")}
+    count = len(times)
+    return {"time": np.array(times), "mass": np.array(masses), "velocity": np.array(velocities),
+            "discharge_rate": np.full(count, float(discharge_rate)),
+            "inflow_rate": np.full(count, float(inflow_rate)), "wall_s": wall,
+            "outflow": outflow}
+
+
+def stderr_progress(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def training_scenarios(quick: bool) -> list[Scenario]:
+    """The design: fills x (discharge, inflow) rates; pointy piles at the start,
+    depleted ones after draining without inflow."""
+    duration = 60.0 if quick else 120.0
+    rows = [(110e3, 400.0, 0.0), (110e3, 150.0, 150.0), (110e3, 300.0, 500.0),
+            (80e3, 250.0, 0.0), (80e3, 450.0, 450.0), (80e3, 100.0, 300.0)]
+    if not quick:
+        rows += [(130e3, 100.0, 0.0), (130e3, 500.0, 250.0), (70e3, 0.0, 400.0),
+                 (130e3, 300.0, 300.0)]
+    return [Scenario(f"train_{k}", fill, q_out, q_in, duration)
+            for k, (fill, q_out, q_in) in enumerate(rows)]
+
+
+HELDOUT = Scenario("heldout", fill=95e3, discharge_rate=200.0, inflow_rate=200.0,
+                   duration=300.0)
+"""Held-out scenario: fill and rates not in the training design, 300 s."""
+
+
+def save_samples(path: Path, result: dict) -> None:
+    np.savez_compressed(path, **{k: v for k, v in result.items()
+                                 if k not in ("outflow", "wall_s")},
+                        wall_s=np.array(result["wall_s"]))
+
+
+def load_samples(directory) -> dict:
+    """Concatenate every ``train/*.npz`` sample file under ``directory``."""
+    files = sorted(Path(directory, "train").glob("*.npz"))
+    parts = [np.load(f) for f in files]
+    if not parts:
+        from cosim.errors import ValidationError
+
+        raise ValidationError("data", "a DOE directory with train/*.npz sample files",
+                              f"none under {directory}")
+    return {key: np.concatenate([p[key] for p in parts])
+            for key in ("time", "mass", "velocity", "discharge_rate", "inflow_rate")}
+
+
+def write_meta(directory: Path, cfg, grid: Grid, container: Container, extra: dict) -> None:
+    meta = {"dem_config": cfg.to_dict(), "grid": grid.to_dict(),
+            "container": container.to_dict(), **extra}
+    Path(directory, "doe.json").write_text(json.dumps(meta, indent=1))
+
+
+def read_meta(directory) -> dict:
+    path = Path(directory, "doe.json")
+    if not path.is_file():
+        from cosim.errors import ValidationError
+
+        raise ValidationError("data", "a DOE directory holding doe.json (minetwin rom evaluate "
+                              "--quick writes one)", f"no {path}")
+    return json.loads(path.read_text())
+
+
+__all__ = ["Scenario", "training_config", "training_scenarios", "HELDOUT", "build_pile",
+           "run_scenario", "LotFeed", "asdict"]

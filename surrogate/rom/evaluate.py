@@ -1,0 +1,308 @@
+"""Build the design, train, and score every storage model on the held-out run.
+
+Source: issue 10 "What it must show": a held-out scenario (rates and pile
+state not in the training set) run for >= 300 s from the same initial state
+with the same inflow and discharge control by the DEM, a second DEM whose
+initial positions differ by 1e-6 m (the noise floor), FIFO, perfect mixing
+and the ROM; tracking error, velocity-field error, outflow grade/hardness
+errors and wall time per simulated second (``surrogate.rom.metrics``).
+
+Data directory layout (written by ``build_data``)::
+
+    doe.json                 DEM config, grid, container, scenarios
+    piles/fill_<kg>.npz      DEM checkpoints of settled piles
+    train/<scenario>.npz     samples: time, mass, velocity, rates
+    heldout/initial.npz      DEM checkpoint the held-out runs start from
+    heldout/emissions.npz    every particle the inlet receives: time, id, mass, ...
+    heldout/dem.npz          reference DEM: outflow, fields per second, wall time
+    heldout/dem_perturbed.npz  the same with positions moved by 1e-6 m
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from cosim.particles import ParticleStore
+from cosim.storage import make_storage
+from surrogate.rom import doe, metrics
+from surrogate.rom.grid import Grid, displacement_velocity_field, mass_field, mean_field
+from surrogate.rom.model import RomModel
+
+PERTURBATION = 1e-6
+"""Initial-position perturbation [m] of the noise-floor DEM run."""
+
+OWNER = 1
+OUTFLOW_KEYS = ("time", "tracking_id", "mass", "grade", "hardness")
+
+
+def _say(progress, message):
+    if progress:
+        progress(message)
+
+
+# ----------------------------------------------------------------- data
+def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
+               reference_dt_factors=()) -> Path:
+    """Run the DOE and the held-out DEM runs into ``directory``."""
+    from surrogate.dem import Dem
+
+    directory = Path(directory)
+    for sub in ("piles", "train", "heldout"):
+        (directory / sub).mkdir(parents=True, exist_ok=True)
+    cfg = doe.training_config()
+    grid = doe.grid_of(cfg)
+    scenarios = doe.training_scenarios(quick)
+    fills = sorted({s.fill for s in scenarios} | {doe.HELDOUT.fill})
+    density = []
+    for k, fill in enumerate(fills):
+        path = directory / "piles" / f"fill_{fill:.0f}.npz"
+        if not path.exists():
+            _say(progress, f"DEM: building a {fill / 1e3:.0f} t pile")
+            dem, _ = doe.build_pile(cfg, fill, seed + k)
+            dem.save_checkpoint(path)
+        density.append(doe.areal_density(Dem.load_checkpoint(path).snapshot(), grid))
+    container = doe.container_of(cfg, float(np.median(density)))
+    for s in scenarios:
+        path = directory / "train" / f"{s.name}.npz"
+        if path.exists():
+            continue
+        _say(progress, f"DEM: {s.name} (fill {s.fill / 1e3:.0f} t, q_out {s.discharge_rate:g}"
+                       f" kg/s, q_in {s.inflow_rate:g} kg/s, {s.duration:g} s)")
+        dem = Dem.load_checkpoint(directory / "piles" / f"fill_{s.fill:.0f}.npz")
+        feed = doe.LotFeed(1000 + 100 * scenarios.index(s), seed)
+        result = doe.run_scenario(dem, feed, s.discharge_rate, s.inflow_rate, s.duration, grid,
+                                  progress)
+        doe.save_samples(path, result)
+    doe.write_meta(directory, cfg, grid, container,
+                   {"quick": quick, "seed": seed,
+                    "scenarios": [doe.asdict(s) for s in scenarios],
+                    "heldout": doe.asdict(doe.HELDOUT)})
+    heldout = directory / "heldout"
+    initial = heldout / "initial.npz"
+    if not initial.exists():
+        Dem.load_checkpoint(directory / "piles" / f"fill_{doe.HELDOUT.fill:.0f}.npz"
+                            ).save_checkpoint(initial)
+    if not (heldout / "emissions.npz").exists():
+        _write_emissions(heldout, Dem.load_checkpoint(initial), doe.HELDOUT, seed)
+    for name, perturb, factor in [("dem", 0.0, 1.0), ("dem_perturbed", PERTURBATION, 1.0)] + [
+            (f"dem_dt{f:g}", 0.0, f) for f in reference_dt_factors]:
+        if not (heldout / f"{name}.npz").exists():
+            _say(progress, f"DEM: held-out run {name}")
+            _run_heldout_dem(heldout, name, grid, perturb, factor, seed, progress)
+    return directory
+
+
+def _write_emissions(heldout: Path, dem, scenario, seed: int) -> None:
+    """The held-out inflow, particle by particle, so every model gets the same particles."""
+    from surrogate.dem.emitter import split_lot
+
+    rng = np.random.default_rng(seed + 7)
+    feed = doe.LotFeed(500, seed + 7)
+    rows = {k: [] for k in ("time", "id", "mass", "tracking_id", "grade", "hardness")}
+    next_id = dem.next_id
+    steps = int(round(scenario.duration / doe.CONTROL_STEP))
+    for k in range(steps):
+        for piece, tid, grade, hardness in feed.take(scenario.inflow_rate * doe.CONTROL_STEP):
+            masses = split_lot(dem.cfg, piece, rng)
+            count = masses.size
+            rows["time"].append(np.full(count, dem.time + k * doe.CONTROL_STEP))
+            rows["id"].append(np.arange(next_id, next_id + count, dtype=np.uint64))
+            rows["mass"].append(masses)
+            rows["tracking_id"].append(np.full(count, tid, dtype=np.uint64))
+            rows["grade"].append(np.full(count, grade))
+            rows["hardness"].append(np.full(count, hardness))
+            next_id += count
+    np.savez_compressed(heldout / "emissions.npz",
+                        **{k: np.concatenate(v) for k, v in rows.items()},
+                        discharge_rate=np.array(scenario.discharge_rate),
+                        duration=np.array(scenario.duration))
+
+
+def _emission_batches(emissions: dict, t0: float, steps: int):
+    step_index = np.round((emissions["time"] - t0) / doe.CONTROL_STEP).astype(np.int64)
+    bounds = np.searchsorted(step_index, np.arange(steps + 1))
+    return [slice(bounds[k], bounds[k + 1]) for k in range(steps)]
+
+
+def _run_heldout_dem(heldout: Path, name: str, grid: Grid, perturbation: float,
+                     dt_factor: float, seed: int, progress) -> None:
+    from surrogate.dem import Dem
+
+    dem = Dem.load_checkpoint(heldout / "initial.npz")
+    if dt_factor != 1.0:
+        dem.set_dt(dem.stable_dt * dt_factor, force=True)
+    if perturbation:
+        angle = np.random.default_rng(seed + 11).uniform(0, 2 * np.pi, dem.n)
+        dem.pos = dem.pos + perturbation * np.column_stack((np.cos(angle), np.sin(angle)))
+    emissions = dict(np.load(heldout / "emissions.npz"))
+    steps = int(round(float(emissions["duration"]) / doe.CONTROL_STEP))
+    batches = _emission_batches(emissions, dem.time, steps)
+    dem.set_discharge_rate(float(emissions["discharge_rate"]))
+    dem.discharged()
+    fields = {k: [] for k in ("time", "mass", "velocity", "grade", "hardness")}
+    snapshot = dem.snapshot()
+    wall = 0.0
+    for k, rows in enumerate(batches):
+        tic = time.perf_counter()
+        if rows.stop > rows.start:
+            dem.emit(emissions["mass"][rows], emissions["grade"][rows],
+                     emissions["hardness"][rows], doe.FEED_F, emissions["tracking_id"][rows],
+                     inlet=0, ids=emissions["id"][rows])
+        dem.advance(doe.CONTROL_STEP)
+        wall += time.perf_counter() - tic
+        after = dem.snapshot()
+        fields["time"].append(snapshot["time"])
+        fields["mass"].append(mass_field(grid, snapshot["position"], snapshot["mass"]))
+        fields["velocity"].append(displacement_velocity_field(grid, snapshot, after))
+        fields["grade"].append(mean_field(grid, snapshot["position"], snapshot["mass"],
+                                          snapshot["grade"]))
+        fields["hardness"].append(mean_field(grid, snapshot["position"], snapshot["mass"],
+                                             snapshot["hardness"]))
+        snapshot = after
+        if (k + 1) % 30 == 0:
+            _say(progress, f"  {name}: t = {k + 1}/{steps} s, wall {wall:.0f} s")
+    out = dem.discharged()
+    np.savez_compressed(heldout / f"{name}.npz",
+                        **{f"out_{k}": np.asarray(out[k]) for k in OUTFLOW_KEYS},
+                        **{f"field_{k}": np.array(v) for k, v in fields.items()},
+                        wall_s=np.array(wall), dt=np.array(dem.dt),
+                        particles=np.array(len(snapshot["id"])), t0=np.array(fields["time"][0]),
+                        discharge_rate=emissions["discharge_rate"])
+
+
+def load_run(path) -> dict:
+    with np.load(path) as data:
+        return {k: data[k] for k in data.files}
+
+
+def outflow_of(run: dict) -> dict:
+    return {k: run[f"out_{k}"] for k in OUTFLOW_KEYS}
+
+
+# -------------------------------------------------------------- training
+def train(directory, out=None, n_mass_modes: int = 12, n_velocity_modes: int = 16,
+          ridge: float = 1e-2) -> RomModel:
+    """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it)."""
+    from surrogate.rom.container import Container
+
+    meta = doe.read_meta(directory)
+    samples = doe.load_samples(directory)
+    model = RomModel(Grid.from_dict(meta["grid"]), n_mass_modes, n_velocity_modes, ridge,
+                     Container.from_dict(meta["container"]))
+    model.fit(samples["mass"], samples["discharge_rate"], samples["inflow_rate"],
+              samples["velocity"])
+    if out is not None:
+        model.save(out)
+    return model
+
+
+# ------------------------------------------------------------ evaluation
+def run_storage(name: str, heldout: Path, model: RomModel | None = None, seed: int = 0,
+                options: dict | None = None) -> tuple[dict, float, object]:
+    """Drive storage model ``name`` through the held-out scenario.
+
+    Returns ``(outflow, wall_s, storage)``; the wall time covers the storage
+    model's calls only (receive, step), not the bookkeeping of this harness.
+    """
+    from surrogate.dem import Dem
+
+    initial = Dem.load_checkpoint(heldout / "initial.npz").snapshot()
+    emissions = dict(np.load(heldout / "emissions.npz"))
+    store = ParticleStore(capacity=4096)
+    store.add_attribute("tracking_id", np.uint64, 0)
+    t0 = float(initial["time"])
+    order = np.argsort(initial["entry_time"], kind="stable")
+    ids = store.add(mass=initial["mass"][order], f=initial["f"][order],
+                    grade=initial["grade"][order], hardness=initial["hardness"][order],
+                    owner=OWNER, time=t0, ids=initial["id"][order],
+                    tracking_id=initial["tracking_id"][order])
+    options = dict(options or {})
+    if name == "rom":
+        options.setdefault("model", model)
+    if name in ("rom", "mixing"):
+        options.setdefault("rng", np.random.default_rng(seed))
+    storage = make_storage(name, **options)
+    storage.bind(store, OWNER)
+    if name == "rom":
+        storage.place(ids, np.asarray(initial["position"])[order])
+    else:
+        storage.receive(ids, t0)
+    steps = int(round(float(emissions["duration"]) / doe.CONTROL_STEP))
+    rate = float(emissions["discharge_rate"])
+    outflow = {k: [] for k in OUTFLOW_KEYS}
+    wall = 0.0
+    for k, rows in enumerate(_emission_batches(emissions, t0, steps)):
+        t = t0 + k * doe.CONTROL_STEP
+        new = store.add(mass=emissions["mass"][rows], f=doe.FEED_F,
+                        grade=emissions["grade"][rows], hardness=emissions["hardness"][rows],
+                        owner=OWNER, time=t, ids=emissions["id"][rows],
+                        tracking_id=emissions["tracking_id"][rows])
+        tic = time.perf_counter()
+        storage.receive(new, t)
+        leaving = storage.step(t, doe.CONTROL_STEP, rate)
+        wall += time.perf_counter() - tic
+        slots = store.slots(leaving)
+        outflow["time"].append(np.full(leaving.size, t + doe.CONTROL_STEP))
+        outflow["tracking_id"].append(store.attribute("tracking_id")[slots].copy())
+        outflow["mass"].append(store.mass[slots].copy())
+        outflow["grade"].append(store.grade[slots].copy())
+        outflow["hardness"].append(store.hardness[slots].copy())
+        store.remove_slots(slots)
+    return {k: np.concatenate(v) for k, v in outflow.items()}, wall, storage
+
+
+def score(outflow: dict, reference: dict, t0: float, t1: float) -> dict:
+    """Tracking error and outflow grade/hardness errors against ``reference``."""
+    return {"tracking_error": metrics.tracking_error(outflow, reference, t0, t1),
+            "grade_error": metrics.outflow_signal_error(outflow, reference, "grade", t0, t1),
+            "hardness_error": metrics.outflow_signal_error(outflow, reference, "hardness",
+                                                           t0, t1)}
+
+
+def evaluate(model: RomModel, directory, progress=None, rom_options=None) -> dict:
+    """Score FIFO, mixing and the ROM against the held-out DEM; the summary dict."""
+    heldout = Path(directory) / "heldout"
+    dem = load_run(heldout / "dem.npz")
+    perturbed = load_run(heldout / "dem_perturbed.npz")
+    t0 = float(dem["t0"])
+    t1 = t0 + float(np.asarray(dem["field_time"]).size) * doe.CONTROL_STEP
+    reference = outflow_of(dem)
+    summary = {"heldout": doe.read_meta(directory)["heldout"], "window_s": 30.0,
+               "tracking_error": {}, "grade_error": {}, "hardness_error": {},
+               "wall_s_per_simulated_s": {}}
+    for name in ("fifo", "mixing", "rom"):
+        _say(progress, f"held-out run: {name}")
+        outflow, wall, _ = run_storage(name, heldout, model,
+                                       options=rom_options if name == "rom" else None)
+        scores = score(outflow, reference, t0, t1)
+        for key, value in scores.items():
+            summary[key][name] = value
+        summary["wall_s_per_simulated_s"][name] = wall / (t1 - t0)
+    floor = score(outflow_of(perturbed), reference, t0, t1)
+    summary["tracking_error_dem_noise_floor"] = floor["tracking_error"]
+    summary["grade_error"]["dem_noise_floor"] = floor["grade_error"]
+    summary["hardness_error"]["dem_noise_floor"] = floor["hardness_error"]
+    summary["wall_s_per_simulated_s"]["dem"] = float(dem["wall_s"]) / (t1 - t0)
+    summary["speedup_vs_dem"] = (summary["wall_s_per_simulated_s"]["dem"]
+                                 / summary["wall_s_per_simulated_s"]["rom"])
+    predicted = np.array([model.predict(m, float(dem["discharge_rate"]),
+                                        float(dem["discharge_rate"]), check=False)
+                          for m in dem["field_mass"]])
+    summary["velocity_field_rel_error"] = metrics.velocity_field_rel_error(
+        predicted, dem["field_velocity"], dem["field_mass"])
+    summary["dem_particles"] = int(dem["particles"])
+    summary["dem_dt_s"] = float(dem["dt"])
+    summary["model"] = model.header()
+    return summary
+
+
+def write_summary(summary: dict, out_dir) -> Path:
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "summary.json"
+    path.write_text(json.dumps(summary, indent=1, default=float))
+    return path
