@@ -108,14 +108,17 @@ def mock_800xa(tmp_path_factory):
 
 @pytest.fixture
 def stockpile_client(mock_800xa):
-    """Callable ``stockpile_client(model="fifo", seed=0, **options)`` -> lockstep client."""
+    """Callable ``stockpile_client(model="fifo", seed=0, **options)`` -> ``LockstepStockpile``.
+
+    ``client.run(until=S)`` advances server and client together and returns
+    an ``ExchangeResult`` (``assert_mass_balance()``, ``assert_ids_accounted()``).
+    """
     from cosim.testing.opcua import LockstepStockpile
 
     clients = []
 
     def _attach(model="fifo", seed=0, **options):
         client = LockstepStockpile(mock_800xa, model=model, seed=seed, **options)
-        client.connect()
         clients.append(client)
         return client
 
