@@ -20,6 +20,8 @@ particles held, from the storage's enter/exit events.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 
@@ -150,3 +152,199 @@ def prediction_errors(predicted: pd.DataFrame, realised: pd.DataFrame,
         errors[p] = float(diff.abs().mean()) if len(diff) else float("nan")
     return errors
 
+
+
+class PileSnapshot(Component):
+    """Master component that keeps the stockpile's particles at one time (paper figure
+    pileDistribution): position [m], velocity [m/s], grade, hardness, mass [kg] and the
+    expected time to leave [s] (cumulative mass ahead in the model's order of leaving
+    divided by the feeder rate)."""
+
+    name = "pile_snapshot"
+
+    def __init__(self, stockpile, at: float):
+        super().__init__()
+        self.stockpile = stockpile
+        self.at = float(at)
+        self.frame: pd.DataFrame | None = None
+
+    def step(self, t: float, dt: float) -> None:
+        if self.frame is not None or t + dt < self.at - 1e-9:
+            return
+        store = self.stockpile.particles
+        order = self.stockpile.model.held_ids()
+        slots = store.slots(order)
+        mass = store.mass[slots]
+        rate = max(float(self.stockpile.scheduled_rate(t + dt)), 1e-9)
+        self.frame = pd.DataFrame({
+            "x": store.position[slots, 0], "y": store.position[slots, 1],
+            "speed": np.linalg.norm(store.velocity[slots], axis=1),
+            "grade": store.grade[slots], "hardness": store.hardness[slots], "mass": mass,
+            "time_to_leave_s": (np.cumsum(mass) - mass) / rate})
+        self.frame.attrs["time"] = t + dt
+
+
+# ------------------------------------------------------------------ reproduce
+DESCRIPTION = ("mill-feed prediction: pile distributions, storage averages and the feed "
+               "predicted for the next 30 s against what leaves, per storage model")
+HORIZON_S = 30.0
+"""Prediction horizon [s] (paper: 30 s)."""
+OUTFLOW_WINDOW_S = 2.0
+"""Moving-average window of the realised outflow [s] (paper: 2 s)."""
+QUICK_UNTIL_S = 700.0
+FULL_UNTIL_S = 1500.0
+ROM_MODEL_ENV = "MINETWIN_ROM_MODEL"
+"""Environment variable naming a trained ROM file (``minetwin rom train``); when set and
+the "rom" storage model is registered, the ROM is compared too."""
+
+
+def storage_models() -> tuple[list[tuple[str, dict]], dict]:
+    """(name, options) of the storage models to compare, and the ones skipped with why."""
+    import os
+
+    from cosim.storage import STORAGE_MODELS
+
+    models, skipped = [("fifo", {}), ("mixing", {})], {}
+    if "rom" in STORAGE_MODELS:
+        path = os.environ.get(ROM_MODEL_ENV)
+        if path and Path(path).is_file():
+            models.append(("rom", {"model": path}))
+        else:
+            skipped["rom"] = f"no trained model: set {ROM_MODEL_ENV} to a `minetwin rom train` file"
+    return models, skipped
+
+
+def analyse_model(run, predicted: pd.DataFrame, min_mass: float) -> tuple[dict, dict]:
+    """Errors and curves of one storage model's run."""
+    table = run.particles
+    exits = table[(table["asset"] == "stockpile") & (table["type"] == "exit")]
+    times = run.times
+    realised = realised_feed(exits, times, HORIZON_S)
+    errors = prediction_errors(predicted, realised, min_mass=min_mass)
+    return errors, {"realised": realised, "predicted": predicted,
+                    "outflow": outflow_moving_average(exits, times, OUTFLOW_WINDOW_S),
+                    "averages": storage_averages(table, "stockpile", times)}
+
+
+def plot(curves: dict, snapshots: dict, out) -> list:
+    """Figures in the spirit of the paper's pileDistribution and storageEvolutionandOutflow."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    paths = []
+    names = list(curves)
+    fig, axes = plt.subplots(len(names), 3, figsize=(12, 3.2 * len(names)), squeeze=False)
+    for row, name in zip(axes, names):
+        snap = snapshots[name]
+        spatial = snap is not None and len(snap) and np.ptp(snap["x"]) + np.ptp(snap["y"]) > 0
+        for ax, column in zip(row, ("speed", "grade", "hardness")):
+            if snap is None or not len(snap):
+                ax.set_axis_off()
+                continue
+            if spatial:
+                points = ax.scatter(snap["x"], snap["y"], c=snap[column], s=4, cmap="viridis")
+                ax.set_xlabel("x [m]")
+                ax.set_ylabel("y [m]")
+                ax.set_aspect("equal")
+                fig.colorbar(points, ax=ax)
+                ax.set_title(f"{name}: {column} at t = {snap.attrs['time']:.0f} s", fontsize=9)
+                continue
+            # no geometry: the pile in the model's order of leaving, the next
+            # horizon's feed (the analogue of the funnel zone) shaded
+            ax.axvspan(0.0, HORIZON_S, color="0.9")
+            if column == "speed":
+                ax.hist(snap["time_to_leave_s"], bins=40, weights=snap["mass"] * 1e-3)
+                ax.set_ylabel("held mass [t]")
+                title = "mass by time to leave"
+            else:
+                ax.scatter(snap["time_to_leave_s"], snap[column], s=4)
+                ax.set_ylabel(column)
+                title = column
+            ax.set_xlabel("expected time to leave [s]")
+            ax.set_title(f"{name}: {title} at t = {snap.attrs['time']:.0f} s", fontsize=9)
+    fig.tight_layout()
+    paths.append(out / "pile_distribution.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(len(names), 2, figsize=(12, 3.2 * len(names)), squeeze=False)
+    for (left, right), name in zip(axes, names):
+        c = curves[name]
+        averages = c["averages"]
+        left.plot(averages["time"], averages["grade"], label="grade")
+        left.plot(averages["time"], averages["hardness"], label="hardness")
+        left.set_title(f"{name}: storage averages", fontsize=9)
+        left.set_xlabel("time [s]")
+        left.legend(fontsize=8)
+        left.grid(alpha=0.3)
+        out_ma, pred, real = c["outflow"], c["predicted"], c["realised"]
+        right.plot(out_ma["time"], out_ma["grade"], color="tab:orange", lw=0.8,
+                   label=f"outflow grade ({OUTFLOW_WINDOW_S:g} s moving average)")
+        right.plot(pred["time"], pred["grade"], color="tab:blue", lw=1.0,
+                   label=f"predicted grade of the next {HORIZON_S:g} s")
+        right.plot(real["time"], real["grade"], color="k", lw=0.8, ls="--",
+                   label=f"realised grade of the next {HORIZON_S:g} s")
+        right.set_title(f"{name}: feed prediction", fontsize=9)
+        right.set_xlabel("time [s]")
+        right.legend(fontsize=7)
+        right.grid(alpha=0.3)
+    fig.tight_layout()
+    paths.append(out / "storage_evolution_and_outflow.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+    return paths
+
+
+def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int | None = None):
+    """One run per storage model with the prediction probe; (summary, failed checks)."""
+    import json
+
+    from cosim.analyses.profile_run import run_profile, scenario_config
+
+    out = Path(out_dir)
+    until = QUICK_UNTIL_S if quick else FULL_UNTIL_S
+    config = scenario_config(quick=quick)
+    models, skipped = storage_models()
+    summary = {"quick": quick, "simulated_s": until, "horizon_s": HORIZON_S,
+               "outflow_window_s": OUTFLOW_WINDOW_S, "storage_models": [m for m, _ in models],
+               "storage_models_skipped": skipped, "feed_grade_prediction_mae": {},
+               "feed_hardness_prediction_mae": {}, "wall_s": {}}
+    curves, snapshots = {}, {}
+    for name, options in models:
+        model_config = json.loads(json.dumps(config))
+        model_config["stockpile"]["model"] = name
+        model_config["stockpile"]["options"] = options
+        probes = []
+
+        def feed_probe(simulation):
+            pile = simulation.assets["stockpile"]
+            return FeedPredictionProbe(pile.model, pile.scheduled_rate, horizon=HORIZON_S)
+
+        def snapshot_probe(simulation):
+            probes.append(PileSnapshot(simulation.assets["stockpile"], at=0.8 * until))
+            return probes[-1]
+
+        run = run_profile(out / f"run_{name}", until=until, config=model_config, seed=seed,
+                          progress=progress, probes=(feed_probe, snapshot_probe))
+        ts = run.timeseries
+        predicted = pd.DataFrame({"time": run.times,
+                                  **{key: ts[f"feed_prediction.{key}"].to_numpy()
+                                     for key in ("mass", *PROPERTIES)}})
+        rates = [rate for _, rate in model_config["stockpile"]["discharge"] if rate > 0]
+        # compare where a full horizon of feed is realised (feeder running, pile not empty)
+        min_mass = 0.9 * HORIZON_S * (min(rates) if rates else 0.0)
+        errors, curves[name] = analyse_model(run, predicted, min_mass)
+        snapshots[name] = probes[0].frame if probes else None
+        summary["feed_grade_prediction_mae"][name] = errors["grade"]
+        summary["feed_hardness_prediction_mae"][name] = errors["hardness"]
+        summary["wall_s"][name] = run.run_summary["wall_s"]
+        summary["seed"] = run.config["simulation"]["seed"]
+    summary["figures"] = [p.name for p in plot(curves, snapshots, out)]
+    failed = [f"{name}: no prediction could be compared" for name in curves
+              if not np.isfinite(summary["feed_grade_prediction_mae"][name])]
+    summary["checks_failed"] = failed
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    return summary, failed
