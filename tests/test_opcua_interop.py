@@ -1,0 +1,81 @@
+"""Interoperability: node-opcua drives our server over Basic256Sha256 SignAndEncrypt.
+
+node-opcua is installed by this test's set-up (``npm install`` into
+``out/.node_opcua``, reused afterwards). Skipped, saying why, only where
+node or npm is absent.
+"""
+
+import asyncio
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from opcua_server.harness import ServerProcess, connect, prepare_state
+from opcua_server.security import APPLICATION_URI_CLIENT
+
+NODE_OPCUA_VERSION = "2.186.4"
+ROOT = Path(__file__).resolve().parents[1]
+INSTALL_DIR = ROOT / "out" / ".node_opcua"
+SCRIPT = Path(__file__).with_name("interop") / "node_opcua_client.js"
+
+
+@pytest.fixture(scope="module")
+def node_opcua():
+    node, npm = shutil.which("node"), shutil.which("npm")
+    if not node or not npm:
+        pytest.skip("node-opcua interoperability test needs node and npm, which are not installed")
+    marker = INSTALL_DIR / "node_modules" / "node-opcua" / "package.json"
+    if not marker.exists() or json.loads(marker.read_text())["version"] != NODE_OPCUA_VERSION:
+        INSTALL_DIR.mkdir(parents=True, exist_ok=True)
+        (INSTALL_DIR / "package.json").write_text('{"name": "minetwin-interop", "private": true}')
+        subprocess.run([npm, "install", "--no-audit", "--no-fund", f"node-opcua@{NODE_OPCUA_VERSION}"],
+                       cwd=INSTALL_DIR, check=True, capture_output=True, timeout=600)
+    return node
+
+
+@pytest.mark.slow
+def test_node_opcua_browses_reads_subscribes_and_writes_by_role(node_opcua, tmp_path):
+    from cryptography import x509
+    from cryptography.hazmat.primitives.serialization import Encoding
+
+    state = prepare_state(tmp_path / "state")
+    cert_pem = tmp_path / "client_cert.pem"
+    cert_pem.write_bytes(x509.load_der_x509_certificate(state["client_cert"].read_bytes())
+                         .public_bytes(Encoding.PEM))
+    server = ServerProcess(tmp_path, state, speed=10.0)
+    try:
+        async def namespace_index():
+            client = await connect(server.url, state, "viewer")
+            try:
+                return await client.get_namespace_index("urn:minetwin:mock800xa")
+            finally:
+                await client.disconnect()
+
+        config = tmp_path / "interop.json"
+        config.write_text(json.dumps({
+            "url": server.url, "workdir": str(tmp_path), "application_uri": APPLICATION_URI_CLIENT,
+            "certificate_pem": str(cert_pem), "private_key_pem": str(state["client_key"]),
+            "namespace_index": asyncio.run(namespace_index()), "listen_ms": 3000,
+            "operator_password": state["passwords"]["operator"],
+            "viewer_password": state["passwords"]["viewer"]}))
+        run = subprocess.run([node_opcua, str(SCRIPT), str(config)], capture_output=True, text=True,
+                             timeout=120, env={"NODE_PATH": str(INSTALL_DIR / "node_modules"),
+                                               "PATH": "/usr/bin:/bin"})
+    finally:
+        server.stop()
+    assert run.returncode == 0, run.stderr[-3000:]
+    result = json.loads(run.stdout.strip().splitlines()[-1])
+    assert {"CV101", "SP201", "CV301", "SimulationTime", "AdvanceTime"} <= set(result["browse"])
+    assert len(result["bin_tracking_ids"]) == len(result["bin_masses"]) == 20
+    assert any(m > 0 for m in result["bin_masses"])
+    sequences = [e["sequence"] for e in result["events"]]
+    assert len(sequences) >= 10  # ~1 bin per simulated second at speed 10 for 3 s
+    assert sequences == list(range(sequences[0], sequences[0] + len(sequences)))
+    assert all(e["mass"] == pytest.approx(250.0) for e in result["events"])
+    assert result["operator_write"] == "Good"
+    assert result["operator_write_out_of_range"] == "BadOutOfRange"
+    assert result["viewer_write"] == "BadUserAccessDenied"
+    assert result["setpoint_after"] == pytest.approx(321.0)
