@@ -149,7 +149,7 @@ def _explicit_kernel(x, hardness, rate, daughter, escape, dt, out, escaped):
 
 
 def mill_step_mass(class_mass, hardness, breakage_rate, daughter_fraction, escape_rate, dt,
-                   method: str = "exponential"):
+                   method: str = "exponential", substeps: int = 1):
     """Advance the class masses of particles in the mill by ``dt`` [s].
 
     Parameters
@@ -165,6 +165,8 @@ def mill_step_mass(class_mass, hardness, breakage_rate, daughter_fraction, escap
     dt : float [s]
         Communication step, > 0.
     method : "exponential" (default) or "explicit"
+    substeps : int
+        Split ``dt`` into this many equal steps with the operators held (default 1).
 
     Returns
     -------
@@ -187,11 +189,18 @@ def mill_step_mass(class_mass, hardness, breakage_rate, daughter_fraction, escap
             raise ValidationError(field, f"an array of {N_CLASSES} rates", f"got shape {arr.shape}")
     daughter = np.ascontiguousarray(
         _check_operator("daughter_fraction", daughter_fraction, finer_only=True, active=rate > 0))
-    out = np.empty_like(x)
-    escaped = np.empty_like(x)
+    if int(substeps) < 1:
+        raise ValidationError("substeps", ">= 1", f"got {substeps!r}")
     kernel = _exponential_kernel if method == "exponential" else _explicit_kernel
-    kernel(x, h, rate, daughter, escape, float(dt), out, escaped)
-    return out, escaped
+    step_escaped = np.empty_like(x)
+    escaped = np.zeros_like(x)
+    current = x
+    for _ in range(int(substeps)):
+        result = np.empty_like(x)
+        kernel(current, h, rate, daughter, escape, float(dt) / int(substeps), result, step_escaped)
+        escaped += step_escaped
+        current = result
+    return current, escaped
 
 
 def mill_step(f, mass, hardness, breakage_rate, daughter_fraction, escape_rate, dt,
