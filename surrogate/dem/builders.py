@@ -98,7 +98,11 @@ def packed_pile(cfg: DemConfig, n_particles: int, seed: int = 0, angle_deg: floa
         row = 0
         while y < height and len(points) < n_particles:
             half = (height - y) / slope
-            xs = np.arange(-half + pitch / 2 + (row % 2) * pitch / 2, half - pitch / 2 + 1e-9, pitch)
+            # a global lattice (not per-row starts) keeps neighbours exactly one pitch apart
+            shift = (row % 2) * pitch / 2
+            k_max = int(math.floor((half - pitch / 2 - shift) / pitch))
+            k_min = -int(math.floor((half - pitch / 2 + shift) / pitch))
+            xs = (np.arange(k_min, k_max + 1) * pitch + shift) if k_max >= k_min else []
             points.extend((x, y) for x in xs)
             y += row_height
             row += 1

@@ -15,14 +15,11 @@ from surrogate.dem.config import DemConfig
 
 
 def wall_segments(cfg: DemConfig) -> np.ndarray:
-    """Rows ``(ax, ay, bx, by)`` [m]: floor, left wall, right wall."""
+    """Rows ``(ax, ay, bx, by)`` [m]: floor, left wall, right wall, extra walls."""
     half = cfg.floor_width / 2.0
     height = cfg.side_wall_height
-    return np.array([
-        [-half, 0.0, half, 0.0],
-        [-half, 0.0, -half, height],
-        [half, 0.0, half, height],
-    ], dtype=np.float64)
+    walls = [[-half, 0.0, half, 0.0], [-half, 0.0, -half, height], [half, 0.0, half, height]]
+    return np.array(walls + list(cfg.extra_walls), dtype=np.float64)
 
 
 def feeder_zones(cfg: DemConfig):

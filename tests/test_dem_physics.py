@@ -1,0 +1,169 @@
+"""Physics of the 2D DEM: restitution, friction law, angle of repose, feeder
+discharge, conservation and time-step stability (issue 5)."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from surrogate.dem import Dem, DemConfig
+from surrogate.dem.analysis import side_angles
+from surrogate.dem.builders import config_for_particles, packed_pile, pour_pile, settle
+from surrogate.dem.config import GRAVITY
+
+F16 = np.eye(16)[12]
+
+
+def _drop(restitution, height=5.0, diameter=0.4):
+    """Drop one disk on the floor; return (impact speed, rebound speed).
+
+    The rebound speed is corrected for the impulse of gravity during the
+    contact (g times the contact duration), which is not part of the
+    contact law the restitution describes (~1.5 % at e = 0.3).
+    """
+    cfg = DemConfig(floor_width=10.0, restitution=restitution, inlets=[[0.0, 8.0]])
+    dem = Dem(cfg)
+    dem.place([[1.0, height]], cfg.sphere_mass(diameter), 0.5, 1.0, F16, 1)
+    r = diameter / 2
+    v_in = None
+    while True:
+        y_before, v_before = dem.pos[0, 1], dem.vel[0, 1]
+        dem.step(1)
+        if v_in is None and dem.pos[0, 1] < r:
+            v_in = -v_before  # last free-flight velocity before touching
+            touched = dem.time - dem.dt
+        if v_in is not None and dem.pos[0, 1] > r and dem.vel[0, 1] > 0:
+            return v_in, dem.vel[0, 1] + GRAVITY * (dem.time - touched)
+        assert dem.time < 5.0, "no rebound"
+        assert y_before > -1.0
+
+
+@pytest.mark.parametrize("restitution", [0.3, 0.6, 0.9])
+def test_dropped_disk_rebounds_with_configured_restitution(restitution):
+    v_in, v_out = _drop(restitution)
+    assert v_in == pytest.approx(math.sqrt(2 * GRAVITY * (5.0 - 0.2)), rel=0.01)
+    assert v_out / v_in == pytest.approx(restitution, rel=0.02)
+
+
+def _on_incline(angle_deg, friction=0.5, seconds=1.0):
+    """Disk at rest on an incline; return its displacement along the slope after ``seconds``."""
+    theta = math.radians(angle_deg)
+    length = 20.0
+    a = np.array([0.0, 1.0])
+    b = a + length * np.array([math.cos(theta), math.sin(theta)])
+    # rolling resistance mu_r = 1 > tan(theta) locks rolling, so the friction law alone decides
+    cfg = DemConfig(floor_width=60.0, friction=friction, rolling_resistance=1.0,
+                    extra_walls=[[*a, *b]], inlets=[[0.0, 20.0]])
+    dem = Dem(cfg)
+    r = 0.2
+    along = np.array([math.cos(theta), math.sin(theta)])
+    normal = np.array([-math.sin(theta), math.cos(theta)])
+    start = a + 15.0 * along + r * normal
+    dem.place([start], cfg.sphere_mass(2 * r), 0.5, 1.0, F16, 1)
+    dem.advance(seconds)
+    return float((start - dem.pos[0]) @ along), dem.time
+
+
+def test_disk_sticks_on_incline_below_friction_angle():
+    moved, _ = _on_incline(20.0)  # tan 20 deg = 0.36 < mu = 0.5
+    assert abs(moved) < 1e-3
+
+
+def test_disk_slides_on_incline_above_friction_angle_with_coulomb_deceleration():
+    angle = 35.0  # tan 35 deg = 0.70 > mu = 0.5
+    moved, t = _on_incline(angle)
+    theta = math.radians(angle)
+    expected = 0.5 * GRAVITY * (math.sin(theta) - 0.5 * math.cos(theta)) * t * t
+    assert moved == pytest.approx(expected, rel=0.03)
+
+
+@pytest.mark.slow
+def test_poured_pile_angle_of_repose_in_30_to_40_degrees():
+    n = 600
+    cfg = config_for_particles(n)
+    dem = Dem(cfg, seed=0)
+    pour_pile(dem, n)
+    settle(dem, max_time=10.0)
+    left, right = side_angles(dem.pos, dem.radius)
+    mean = 0.5 * (left + right)
+    assert 30.0 <= mean <= 40.0, (left, right)
+
+
+@pytest.fixture(scope="module")
+def settled_pile():
+    cfg = config_for_particles(600)
+    dem = packed_pile(cfg, 600, seed=1)
+    settle(dem, max_time=3.0)
+    return dem
+
+
+@pytest.mark.parametrize("rate", [500.0, 2000.0])
+def test_discharge_follows_setpoint_and_conserves_mass_and_ids(settled_pile, tmp_path, rate):
+    path = tmp_path / "pile.npz"
+    settled_pile.save_checkpoint(path)
+    dem = Dem.load_checkpoint(path)
+    ids_in = set(dem.id.tolist())
+    mass_in = dem.held_mass()
+    dem.set_discharge_rate(rate)
+    dem.advance(1.0)  # the feeder's first draw empties the zone it starts with
+    first = dem.discharged()
+    duration = 4.0
+    dem.advance(duration)
+    out = dem.discharged()
+    assert out["mass"].sum() / duration == pytest.approx(rate, rel=0.05)
+    assert dem.held_mass() > 0.5 * mass_in  # still "full"
+    left = np.concatenate((first["id"], out["id"]))
+    assert len(set(left.tolist())) == left.size
+    assert set(left.tolist()) | set(dem.id.tolist()) == ids_in
+    assert not set(left.tolist()) & set(dem.id.tolist())
+    total = dem.held_mass() + first["mass"].sum() + out["mass"].sum()
+    assert total == pytest.approx(mass_in, rel=1e-12)
+    assert dem.mass_balance_error() < 1e-12
+
+
+def test_pouring_puts_every_kilogram_and_id_into_the_dem():
+    cfg = config_for_particles(80)
+    dem = Dem(cfg, seed=3)
+    lots = [137.5, 600.0, 1234.25, 45.0]
+    ids = [dem.emit(m, 0.4, 1.1, F16, k, inlet=k % 2) for k, m in enumerate(lots)]
+    dem.advance(0.5)
+    for k, m in enumerate(lots):
+        rows = np.isin(dem.id, ids[k])
+        assert dem.mass[rows].sum() == pytest.approx(m, rel=1e-14)
+        assert (dem.tracking_id[rows] == k).all()
+    assert np.concatenate(ids).size == np.unique(np.concatenate(ids)).size == dem.n
+    d = 2 * dem.radius
+    assert d.min() >= cfg.diameter_min and d.max() <= cfg.diameter_max
+
+
+def _pile_energy_history(dt_factor, steps, chunks):
+    cfg = dataclasses.replace(config_for_particles(150), restitution=0.5)
+    dem = packed_pile(cfg, 150, seed=2)
+    dem.set_dt(dt_factor * dem.stable_dt, force=dt_factor > 1)
+    energies = [dem.energy()["total"]]
+    for _ in range(chunks):
+        dem.step(steps)
+        energies.append(dem.energy()["total"])
+    return np.array(energies), dem
+
+
+def test_energy_decays_at_derived_step_and_blows_up_far_above_the_limit():
+    stable, dem = _pile_energy_history(1.0, 500, 6)
+    assert np.isfinite(stable).all()
+    assert stable[-1] < stable[0]
+    assert (np.diff(stable) <= 1e-9 * abs(stable[0])).all()  # never gains energy
+    # 10 x stable_dt = t_c / 1.5 exceeds symplectic Euler's limit (2 / pi) t_c for
+    # one linear contact: the energy must explode, by orders of magnitude
+    unstable, _ = _pile_energy_history(10.0, 500, 2)
+    assert not np.isfinite(unstable).all() or unstable.max() > 100 * abs(stable[0])
+
+
+def test_step_above_the_limit_is_refused_with_the_limit_in_the_message():
+    dem = Dem(DemConfig())
+    with pytest.raises(ValueError, match=f"{dem.stable_dt:.4g} s"):
+        dem.set_dt(2 * dem.stable_dt)
+    with pytest.raises(ValueError, match="stability limit"):
+        Dem(DemConfig(), dt=1.5 * dem.stable_dt)
+    dem.set_dt(2 * dem.stable_dt, force=True)
+    assert dem.dt == 2 * dem.stable_dt
