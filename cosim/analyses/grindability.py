@@ -264,9 +264,10 @@ def _every(times: np.ndarray, spacing: float) -> np.ndarray:
 # ------------------------------------------------------------------ reproduce
 DESCRIPTION = ("Bond work index in the mill and the grindability backtracked to the 10 m "
                "blocks of the left source's quadratic hardness profile")
-QUICK_UNTIL_S = 1800.0
-"""Simulated time of ``--quick`` [s]: the narrow-face quick run mines the 100 m profile
-in about 1,400 s; the last blocks reach the mill through the stockpile by 1,800 s."""
+QUICK_UNTIL_S = 1250.0
+"""Simulated time of ``--quick`` [s]: the narrow-face quick run mines the lead-in and the
+100 m profile in about 850 s; the last blocks reach the mill through the stockpile by
+about 1,150 s."""
 FULL_UNTIL_S = 3300.0
 """Simulated time of the full run [s]: the profile is mined by about 2,800 s."""
 BLOCK_LENGTH_M = 10.0
@@ -279,14 +280,16 @@ CORR_LIMIT = -0.8
 """Largest accepted correlation of block grindability with block hardness."""
 
 
-def left_blocks(particles: pd.DataFrame, source: str = "left", n_blocks: int = N_BLOCKS):
-    """Block of origin by particle id (-1 outside the first ``n_blocks``), the mined mass
-    m_i^0 [kg] and the mass-weighted true hardness of each block, from the appear events.
+def left_blocks(particles: pd.DataFrame, source: str = "left", n_blocks: int = N_BLOCKS,
+                first_cell: int = 0):
+    """Block of origin by particle id (-1 outside the ``n_blocks`` blocks from block-model
+    cell ``first_cell`` on), the mined mass m_i^0 [kg] and the mass-weighted true hardness
+    of each block, from the appear events.
 
     The scenario's block model has 10 m cells, so ``origin_block`` is the block index.
     """
     appear = particles[(particles["type"] == "appear") & (particles["asset"] == source)]
-    blocks = appear["origin_block"].to_numpy(np.int64)
+    blocks = appear["origin_block"].to_numpy(np.int64) - int(first_cell)
     blocks = np.where((blocks >= 0) & (blocks < n_blocks), blocks, -1)
     block_of = pd.Series(blocks, index=appear["particle_id"].to_numpy())
     inside = blocks >= 0
@@ -296,6 +299,11 @@ def left_blocks(particles: pd.DataFrame, source: str = "left", n_blocks: int = N
     with np.errstate(invalid="ignore", divide="ignore"):
         hardness = np.where(mass > 0, weighted / mass, np.nan)
     return block_of, mass, hardness
+
+
+def profile_first_cell(run) -> int:
+    """Block-model cell where the run's hardness profile starts (10 m cells)."""
+    return int(round(run.profile_start / BLOCK_LENGTH_M))
 
 
 def mill_inputs(run, window: float = 30.0):
@@ -315,7 +323,8 @@ def mill_inputs(run, window: float = 30.0):
 def analyse(run, window: float = 30.0) -> tuple[dict, dict]:
     """Bond signals and block reconciliation on a run; (summary, plot data)."""
     signals, feed, product = mill_inputs(run, window)
-    block_of, mass, hardness = left_blocks(run.particles)
+    block_of, mass, hardness = left_blocks(run.particles,
+                                           first_cell=profile_first_cell(run))
     mined = mass > 0
     index = np.flatnonzero(mined)
     # only mined blocks take part (m_i^0 > 0); keep their original numbers
@@ -375,7 +384,7 @@ def plot(data: dict, out) -> list:
     fig.savefig(paths[-1], dpi=110)
     plt.close(fig)
 
-    centres = (data["index"] + 0.5) * BLOCK_LENGTH_M
+    centres = (data["index"] + 0.5) * BLOCK_LENGTH_M     # from the profile's start
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.bar(centres, result["final"], width=0.8 * BLOCK_LENGTH_M, color=np.where(
         data["enough"], "tab:orange", "lightgray"), label="backtracked grindability G_i")

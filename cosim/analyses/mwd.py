@@ -262,9 +262,9 @@ class MwdSurvey(Component):
 # ------------------------------------------------------------------ reproduce
 DESCRIPTION = ("hardness from MWD: fit beta of s = h**beta from the crusher torque and the "
                "tracked origins, predict the hardness entering the crusher")
-QUICK_UNTIL_S = 1500.0
-"""Simulated time of ``--quick`` [s]: the narrow-face quick run mines the profile's rise
-and peak (h from 1 to 2) by then."""
+QUICK_UNTIL_S = 800.0
+"""Simulated time of ``--quick`` [s]: the narrow-face quick run mines the whole profile
+(h from 1 to 2 and back) by then."""
 FULL_UNTIL_S = 2600.0
 """Simulated time of the full run [s]: 2,500 s of sampling after the first dump."""
 BETA_TOLERANCE = 0.01

@@ -148,11 +148,14 @@ def analyse(run, *, dxs, seeds, window: float = 30.0) -> tuple[dict, pd.DataFram
     mwd_sweep = mwd_sensitivity(run.times, run.timeseries["crusher_fmu.torque"].to_numpy(),
                                 stays, origins, dxs=dxs, seeds=seeds, beta_true=MWD_BETA)
     signals, feed, product = grindability.mill_inputs(run, window)
-    _, mass, hardness = grindability.left_blocks(run.particles)
+    _, mass, hardness = grindability.left_blocks(
+        run.particles, first_cell=grindability.profile_first_cell(run))
     n_blocks = int(np.argmin(mass > 0)) if np.any(mass <= 0) else mass.size
     x = survey.loc[survey["source"] == "left", "x"]
     grind_sweep = grindability_sensitivity(
-        signals, feed, product, x, start=0.0, block_length=grindability.BLOCK_LENGTH_M,
+        signals, feed, product, x,
+        start=grindability.profile_first_cell(run) * grindability.BLOCK_LENGTH_M,
+        block_length=grindability.BLOCK_LENGTH_M,
         n_blocks=n_blocks, block_mass=mass[:n_blocks], block_hardness=hardness[:n_blocks],
         dxs=dxs, seeds=seeds, window=window, alpha0=grindability.ALPHA0)
     summary = {"dxs_m": [float(d) for d in dxs], "seeds": [int(s) for s in seeds],
