@@ -26,7 +26,8 @@ Tables and keys (defaults in brackets):
     length_m, speed_m_s [2], bin_length_m [1]
 ``[stockpile]`` position_m, outlet_m [= position], model ["fifo"], options
     (table passed to the storage model), capacity_kg [2e6], discharge (list
-    of [time_s, rate_kg_s], [[0, 0]])
+    of [time_s, rate_kg_s], [[0, 0]]), initial_mass_kg [0]: ore mined and
+    crushed before t = 0 (see ``fill_stockpile``)
 ``[mill]`` position_m, fmu ["mill"], speed_rad_s [1.2],
     product_threshold_kg [0.01], product_event_interval_s [10], parameters
 
@@ -211,8 +212,10 @@ def validate(raw: dict) -> dict:
 
     if not isinstance(raw, dict):
         raise ValidationError("scenario", "a table of tables", f"got {type(raw).__name__}")
+    # [reference] names the signals of a reference result (cosim.testing.reference);
+    # the simulator ignores it
     _no_unknown(raw, ("simulation", "sources", "trucks", "crusher", "conveyors", "stockpile",
-                      "mill"), "")
+                      "mill", "reference"), "")
     cfg: dict = {}
     sim = _table(raw, "simulation", "", {})
     _no_unknown(sim, ("until_s", "step_s", "record_every_s", "seed", "sensor_window_s"),
@@ -283,7 +286,7 @@ def validate(raw: dict) -> dict:
                         for name in ("crusher_to_stockpile", "stockpile_to_mill")}
     pile = _table(raw, "stockpile", "")
     _no_unknown(pile, ("position_m", "outlet_m", "model", "options", "capacity_kg",
-                       "discharge"), "stockpile")
+                       "discharge", "initial_mass_kg"), "stockpile")
     discharge = pile.get("discharge", [[0.0, 0.0]])
     ok = isinstance(discharge, list) and discharge and all(
         isinstance(row, list) and len(row) == 2 for row in discharge)
@@ -306,6 +309,9 @@ def validate(raw: dict) -> dict:
                                low_open=True, high=1e9, unit="kg"),
         "discharge": rows,
     }
+    cfg["stockpile"]["initial_mass_kg"] = _number(
+        pile, "initial_mass_kg", "stockpile", 0.0, low=0.0, high=cfg["stockpile"]["capacity_kg"],
+        unit="kg")
     mill = _table(raw, "mill", "")
     _no_unknown(mill, ("position_m", "fmu", "speed_rad_s", "product_threshold_kg",
                        "product_event_interval_s", "parameters"), "mill")
@@ -480,8 +486,36 @@ def build(config: dict, *, seed: int | None = None, storage_model: str | None = 
     master.connect(mill, "charge_mass", mill_fmu, "charge_mass")
     for name in ("breakage_rate", "daughter_fraction", "escape_rate"):
         master.connect(mill_fmu, name, mill, name)
+    if pcfg["initial_mass_kg"] > 0:
+        fill_stockpile(stockpile, trucks[0], crusher_fmu.outputs()["fragmentation_map"],
+                       pcfg["initial_mass_kg"])
     return Simulation(cfg, master, plant, assets,
                       None if events_path is None else str(events_path))
+
+
+def fill_stockpile(stockpile, truck, fragmentation_map, mass: float) -> None:
+    """Put ``mass`` [kg] of earlier production into the stockpile at t = 0.
+
+    The material is what the plant would have made before the run: truck
+    loads of ``truck.payload`` [kg] taken in turn from the truck's route
+    (the loading faces advance, "appear" events at t = 0) and crushed with
+    the crusher FMU's fragmentation map, then received by the stockpile
+    ("enter" events at t = 0). It gives the stockpile the paper's scale
+    (2,000 t, about 20,000 particles) without simulating the hours of
+    filling.
+    """
+    from cosim.comminution import apply_fragmentation
+
+    store = stockpile.particles
+    remaining, k = float(mass), 0
+    while remaining > 1e-9:
+        load = min(truck.payload, remaining)
+        ids = truck.route[k % len(truck.route)].take(load, 0.0)
+        slots = store.slots(ids)
+        store.f[slots] = apply_fragmentation(store.f[slots], fragmentation_map)
+        stockpile.receive(ids, 0.0)
+        remaining -= load
+        k += 1
 
 
 # --------------------------------------------------------------------- outputs

@@ -193,3 +193,16 @@ def test_a_response_that_never_arrives_has_infinite_delay():
     flat = measure_step_response(t, np.ones_like(t), step_time=10.0,
                                  before=(0, 10), after=(50, 90))
     assert flat.delay == np.inf
+
+
+def test_undefined_reference_samples_must_stay_undefined():
+    t = np.arange(10.0)
+    ref = np.where(t < 4, np.nan, 1.0)          # a sensor over an empty asset, then defined
+    tol = Tolerance(rtol=0.01, time_shift=1.0)
+    assert compare_signal("s", t, ref, t, ref, tol).passed
+    # NaN one sample later is within the allowed time shift
+    assert compare_signal("s", t, np.where(t < 5, np.nan, 1.0), t, ref, tol).passed
+    early = compare_signal("s", t, np.where(t < 1, np.nan, 1.0), t, ref, tol)
+    assert not early.passed and early.worst_time == 1.0   # defined where the reference is not
+    late = compare_signal("s", t, np.where(t < 7, np.nan, 1.0), t, ref, tol)
+    assert not late.passed and late.n_outside == 2        # t = 5, 6 undefined, reference not

@@ -19,11 +19,15 @@ signal's own unit and ``rtol`` the relative tolerance [-] (as numpy's
 between its samples, so the window's extremes are taken over the reference
 samples inside the window and the interpolated values at its two ends.
 With ``s = 0``, ``atol = rtol = 0`` the band is the reference itself.
+
+NaN in a reference marks an undefined sample (a sensor over an empty asset):
+where no defined reference lies in the window, the result must be NaN too;
+where the window holds both, a NaN result is accepted.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -79,11 +83,13 @@ class SignalComparison:
     lower: np.ndarray
     upper: np.ndarray
     coverage_problem: str = ""
-    outside: np.ndarray = field(init=False)
+    outside: np.ndarray | None = None
+    """Samples outside the band (default: value not within [lower, upper])."""
 
     def __post_init__(self):
-        with np.errstate(invalid="ignore"):
-            self.outside = ~((self.value >= self.lower) & (self.value <= self.upper))
+        if self.outside is None:
+            with np.errstate(invalid="ignore"):
+                self.outside = ~((self.value >= self.lower) & (self.value <= self.upper))
 
     @property
     def passed(self) -> bool:
@@ -100,9 +106,12 @@ class SignalComparison:
 
     @property
     def excess(self) -> np.ndarray:
-        """How far each sample lies outside the band (0 inside, inf for NaN)."""
-        beyond = np.maximum(np.maximum(self.value - self.upper, self.lower - self.value), 0.0)
-        return np.where(np.isnan(self.value), np.inf, beyond)
+        """How far each sample lies outside the band (0 inside; inf where outside
+        because the value or the band is undefined)."""
+        with np.errstate(invalid="ignore"):
+            beyond = np.fmax(np.fmax(self.value - self.upper, self.lower - self.value), 0.0)
+        return np.where(self.outside, np.where(np.isfinite(beyond) & (beyond > 0), beyond,
+                                               np.inf), 0.0)
 
     @property
     def worst_index(self) -> int | None:
@@ -111,7 +120,10 @@ class SignalComparison:
             return None
         if self.outside.any():
             return int(np.argmax(self.excess))
-        return int(np.argmax(np.abs(self.deviation)))
+        magnitude = np.abs(self.deviation)
+        if np.isnan(magnitude).all():
+            return 0
+        return int(np.nanargmax(magnitude))
 
     @property
     def worst_deviation(self) -> float:
@@ -196,9 +208,9 @@ def compare_signal(name: str, time, values, ref_time, ref_values,
     """
     t, y = _as_series(name, "result", time, values)
     tr, yr = _as_series(name, "reference", ref_time, ref_values)
-    if not np.isfinite(yr).all():
-        raise ValidationError(f"reference of {name!r}", "finite values",
-                              f"{int((~np.isfinite(yr)).sum())} non-finite")
+    if np.isinf(yr).any():
+        raise ValidationError(f"reference of {name!r}", "finite values or NaN (undefined)",
+                              f"{int(np.isinf(yr).sum())} infinite")
     slack = tolerance.time_shift + (0.5 * float(np.median(np.diff(t))) if t.size > 1 else 0.0)
     problem = ""
     if t[0] > tr[0] + slack or t[-1] < tr[-1] - slack:
@@ -213,11 +225,27 @@ def compare_signal(name: str, time, values, ref_time, ref_values,
     edge_lo, edge_hi = np.interp(lo_t, tr, yr), np.interp(hi_t, tr, yr)
     start = np.searchsorted(tr, lo_t, side="left")
     stop = np.searchsorted(tr, hi_t, side="right")
-    inner_min, inner_max = _range_extremes(yr, start, stop)
-    window_min = np.minimum(np.minimum(edge_lo, edge_hi), inner_min)
-    window_max = np.maximum(np.maximum(edge_lo, edge_hi), inner_max)
-    allowance = tolerance.atol + tolerance.rtol * np.maximum(np.abs(window_min),
-                                                             np.abs(window_max))
+    undefined = np.isnan(yr)
+    inner_min, _ = _range_extremes(np.where(undefined, np.inf, yr), start, stop)
+    _, inner_max = _range_extremes(np.where(undefined, -np.inf, yr), start, stop)
+    window_min = np.fmin(np.fmin(edge_lo, edge_hi), inner_min)
+    window_max = np.fmax(np.fmax(edge_lo, edge_hi), inner_max)
+    with np.errstate(invalid="ignore"):  # all-NaN windows give inf - inf
+        allowance = tolerance.atol + tolerance.rtol * np.maximum(np.abs(window_min),
+                                                                 np.abs(window_max))
+        lower, upper = window_min - allowance, window_max + allowance
+    # NaN marks an undefined sample (e.g. a sensor over an empty asset): where the
+    # window holds no defined reference the result must be undefined too; where it
+    # holds some, an undefined result is accepted if the window also holds NaN
+    nan_count = np.concatenate(([0], np.cumsum(undefined)))
+    window_has_nan = ((nan_count[stop] - nan_count[start]) > 0) | np.isnan(edge_lo) \
+        | np.isnan(edge_hi)
+    defined = np.isfinite(lower) & np.isfinite(upper)
+    with np.errstate(invalid="ignore"):
+        inside = np.where(np.isnan(y), ~defined | window_has_nan,
+                          defined & (y >= lower) & (y <= upper))
     return SignalComparison(name=name, tolerance=tolerance, time=t, value=y,
-                            reference=np.interp(t, tr, yr), lower=window_min - allowance,
-                            upper=window_max + allowance, coverage_problem=problem)
+                            reference=np.interp(t, tr, yr),
+                            lower=np.where(defined, lower, np.nan),
+                            upper=np.where(defined, upper, np.nan), coverage_problem=problem,
+                            outside=~inside)

@@ -1,0 +1,111 @@
+"""Run a mine-simulator scenario for a test: overrides, seed, results in one object.
+
+Wraps ``cosim.scenario`` (load, validate, build, run, write): the scenario
+TOML is read, dotted ``overrides`` are applied (``{"crusher.fmu":
+"cone_crusher", "stockpile.model": "mixing"}``), the result is validated by
+the simulator's own rules (so a typo in an override is an error naming the
+key) and run into ``out``, which then holds ``timeseries.parquet``,
+``events.sqlite`` and ``summary.json`` as ``minetwin simulate`` writes them.
+The ``[reference]`` table (``cosim.testing.reference``) is not the
+simulator's and is set aside before validation.
+"""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cosim.errors import ValidationError
+
+
+@dataclass
+class ScenarioRun:
+    """A finished scenario run.
+
+    Attributes
+    ----------
+    timeseries : pandas.DataFrame
+        Every recorded signal, indexed by time [s] (columns ``component.signal``).
+    events : cosim.events.EventStore
+        The macro-tracking events (open for reading; closed by ``close``).
+    summary : dict
+        ``summary.json`` (mass in/held/out, particles, timing, signal means).
+    out : Path
+        The folder holding the run's files.
+    config : dict
+        The validated scenario that ran (after overrides).
+    simulation : cosim.scenario.Simulation
+        The built plant after the run (assets, particle store, master).
+    """
+
+    timeseries: object
+    events: object
+    summary: dict
+    out: Path
+    config: dict
+    simulation: object = field(repr=False, default=None)
+
+    def close(self) -> None:
+        if self.events is not None:
+            self.events.close()
+
+
+def apply_overrides(document: dict, overrides: dict | None) -> dict:
+    """A copy of ``document`` with dotted keys set (``"stockpile.model": "mixing"``).
+
+    Every table on the way must exist; the last key may be new (optional
+    keys); the simulator's validation then refuses unknown ones.
+    """
+    result = copy.deepcopy(document)
+    for dotted, value in (overrides or {}).items():
+        parts = str(dotted).split(".")
+        table = result
+        for depth, part in enumerate(parts[:-1]):
+            if not isinstance(table.get(part), dict):
+                where = ".".join(parts[:depth + 1])
+                raise ValidationError(f"overrides[{dotted!r}]", "a key inside existing tables",
+                                      f"the scenario has no table {where!r}; tables there: "
+                                      f"{sorted(k for k, v in table.items() if isinstance(v, dict))}")
+            table = table[part]
+        table[parts[-1]] = value
+    return result
+
+
+def read_document(path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise ValidationError("scenario", "an existing TOML file", f"{str(path)!r} not found")
+    try:
+        return tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ValidationError("scenario", "valid TOML", f"{path}: {exc}") from None
+
+
+def run_scenario(path, *, until: float | None = None, overrides: dict | None = None,
+                 seed: int | None = None, out=None, storage_model: str | None = None,
+                 progress: bool = False) -> ScenarioRun:
+    """Run scenario TOML ``path`` to ``until`` [s] (default: the scenario's) into ``out``.
+
+    ``seed`` overrides the scenario's seed; ``storage_model`` its stockpile
+    model. Returns a ``ScenarioRun`` (call ``close()`` when done, or use the
+    pytest fixture, which does).
+    """
+    import tempfile
+
+    import pandas as pd
+
+    from cosim import scenario
+    from cosim.events import EventStore
+
+    document = read_document(path)
+    document.pop("reference", None)
+    config = scenario.validate(apply_overrides(document, overrides))
+    out = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="minetwin-run-"))
+    simulation, summary = scenario.run_scenario(config, out, until=until, seed=seed,
+                                                storage_model=storage_model, progress=progress)
+    timeseries = pd.read_parquet(out / "timeseries.parquet")
+    events = EventStore(out / "events.sqlite")
+    return ScenarioRun(timeseries=timeseries, events=events, summary=summary, out=out,
+                       config=config, simulation=simulation)
