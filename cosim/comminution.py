@@ -103,37 +103,39 @@ def apply_fragmentation(f_rows, fragmentation_map) -> np.ndarray:
     return f @ m.T
 
 
-@njit(cache=True)
-def _exponential_kernel(x, hardness, rate, daughter, escape, dt, out, escaped):
+@njit(cache=True, fastmath=True)
+def _exponential_kernel(x, hardness, rate, daughter_by_source, escape, dt, out, escaped):
     n, nc = x.shape
+    inflow = np.empty(nc)
+    decay = np.empty(nc)
+    phi = np.empty(nc)
+    broken_share = np.empty(nc)
     for p in range(n):
-        inflow = np.zeros(nc)
         inv_h = 1.0 / hardness[p]
-        for j in range(nc - 1, -1, -1):
+        for j in range(nc):  # independent per class: vectorisable
             breakage = rate[j] * inv_h
             lam = breakage + escape[j]
             z = lam * dt
+            decay[j] = np.exp(-z)
+            phi[j] = (1.0 - decay[j]) / z if z > 1e-8 else 1.0 - 0.5 * z
+            broken_share[j] = breakage / lam if lam > 0.0 else 0.0
+            inflow[j] = 0.0
+        for j in range(nc - 1, -1, -1):  # coarse to fine: inflow comes from coarser classes
             start = x[p, j]
-            if z > 0.0:
-                decay = np.exp(-z)
-                phi = (1.0 - decay) / z if z > 1e-8 else 1.0 - 0.5 * z
-                stay = start * decay + inflow[j] * phi
-                removed = start + inflow[j] - stay
-                if removed < 0.0:
-                    removed = 0.0
-                broken = removed * (breakage / lam)
-                escaped[p, j] = removed - broken
-                out[p, j] = stay
-                if broken > 0.0:
-                    for k in range(j):
-                        inflow[k] += daughter[k, j] * broken
-            else:
-                out[p, j] = start + inflow[j]
-                escaped[p, j] = 0.0
+            stay = start * decay[j] + inflow[j] * phi[j]
+            removed = start + inflow[j] - stay
+            if removed < 0.0:
+                removed = 0.0
+            broken = removed * broken_share[j]
+            escaped[p, j] = removed - broken
+            out[p, j] = stay
+            if broken > 0.0:
+                for k in range(j):
+                    inflow[k] += daughter_by_source[j, k] * broken
 
 
 @njit(cache=True)
-def _explicit_kernel(x, hardness, rate, daughter, escape, dt, out, escaped):
+def _explicit_kernel(x, hardness, rate, daughter_by_source, escape, dt, out, escaped):
     n, nc = x.shape
     for p in range(n):
         inv_h = 1.0 / hardness[p]
@@ -145,7 +147,7 @@ def _explicit_kernel(x, hardness, rate, daughter, escape, dt, out, escaped):
             escaped[p, j] = leaving
             out[p, j] -= broken + leaving
             for k in range(nc):
-                out[p, k] += daughter[k, j] * broken
+                out[p, k] += daughter_by_source[j, k] * broken
 
 
 def mill_step_mass(class_mass, hardness, breakage_rate, daughter_fraction, escape_rate, dt,
@@ -187,8 +189,9 @@ def mill_step_mass(class_mass, hardness, breakage_rate, daughter_fraction, escap
     for field, arr in (("breakage_rate", rate), ("escape_rate", escape)):
         if arr.shape != (N_CLASSES,):
             raise ValidationError(field, f"an array of {N_CLASSES} rates", f"got shape {arr.shape}")
-    daughter = np.ascontiguousarray(
-        _check_operator("daughter_fraction", daughter_fraction, finer_only=True, active=rate > 0))
+    # transposed so that the kernels read the daughters of one source class contiguously
+    daughter_by_source = np.ascontiguousarray(
+        _check_operator("daughter_fraction", daughter_fraction, finer_only=True, active=rate > 0).T)
     if int(substeps) < 1:
         raise ValidationError("substeps", ">= 1", f"got {substeps!r}")
     kernel = _exponential_kernel if method == "exponential" else _explicit_kernel
@@ -197,7 +200,8 @@ def mill_step_mass(class_mass, hardness, breakage_rate, daughter_fraction, escap
     current = x
     for _ in range(int(substeps)):
         result = np.empty_like(x)
-        kernel(current, h, rate, daughter, escape, float(dt) / int(substeps), result, step_escaped)
+        kernel(current, h, rate, daughter_by_source, escape, float(dt) / int(substeps), result,
+               step_escaped)
         escaped += step_escaped
         current = result
     return current, escaped
