@@ -168,3 +168,17 @@ def test_fmu_state_get_set_restores_outputs():
         fmu.slave.freeFMUState(state)
     finally:
         fmu.finish()
+
+
+def test_cli_build_and_validate(capsys):
+    from cosim.cli import main
+
+    assert main(["fmus", "build", "--model", "crusher"]) == 0
+    assert "up to date" in capsys.readouterr().err
+    path = str(fmu_path("crusher"))
+    assert main(["fmus", "validate", path]) == 0
+    assert "ok" in capsys.readouterr().out
+    assert main(["fmus", "validate", "--interface", "mill", path]) == 1
+    assert "variable 'speed_setpoint': must be an input" in capsys.readouterr().err
+    assert main(["fmus", "validate", "no/such.fmu"]) == 2
+    assert main(["fmus", "build", "--model", "ball_mill"]) == 2

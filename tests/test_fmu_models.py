@@ -123,3 +123,17 @@ def test_mill_breakage_slows_with_hardness_scale_and_grows_with_charge():
         np.testing.assert_allclose(rates[1][1:] / rates[0][1:], 4.0, rtol=1e-12)
     finally:
         fmu.finish()
+
+
+@pytest.mark.parametrize("name", ["crusher", "mill", "cone_crusher"])
+def test_readme_documents_every_variable_with_unit_and_default(name):
+    import json
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent / "fmus"
+    readme = (root / "README.md").read_text()
+    for v in json.loads((root / name / "interface.json").read_text())["variables"]:
+        shape = "x".join(map(str, v.get("shape", []))) or "scalar"
+        default = repr(v["start"]) if "start" in v else "computed"
+        row = f"| `{v['name']}` | {v['causality']} | {shape} | {v.get('unit', '1')} | {default} |"
+        assert row in readme, row
