@@ -28,6 +28,7 @@ setup: $(STAMP) $(FMU_STAMP)
 
 demo: setup
 	$(BIN)/python examples/foundation_demo.py --out $(OUT)/demo
+	$(BIN)/minetwin integration-test --duration 30 --speed 1 --out $(OUT)/demo/integration
 
 test: setup
 	$(BIN)/python -m pytest
