@@ -4,6 +4,10 @@ gives the same outputs for the same inputs."""
 
 from __future__ import annotations
 
+import ctypes
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -11,13 +15,18 @@ from cosim.fmu import CRUSHER_INTERFACE, MILL_INTERFACE, FmuComponent, fmi2_scal
 
 
 def _ecospy():
+    # ecospy's engine links libtbb.so.12; the pinned `tbb` test extra ships it in the
+    # environment's lib/, which the loader does not search: load it first by path.
+    bundled = Path(sys.prefix) / "lib" / "libtbb.so.12"
+    if bundled.is_file():
+        ctypes.CDLL(str(bundled), mode=ctypes.RTLD_GLOBAL)
     try:
         import ecospy
     except ImportError as exc:
         pytest.skip(f"ecospy is not installed ({exc}); it is a test extra: pip install -e .[test]")
     except OSError as exc:  # its bundled engine needs the TBB runtime
-        pytest.skip(f"ecospy cannot load its engine here ({exc}); on Debian: "
-                    "apt-get install libtbb12")
+        pytest.skip(f"ecospy cannot load its engine here ({exc}); install the test extras "
+                    "(pip install -e .[test], which brings tbb) or apt-get install libtbb12")
     return ecospy
 
 
