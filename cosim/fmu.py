@@ -39,6 +39,7 @@ from __future__ import annotations
 import ctypes
 import re
 import shutil
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -211,6 +212,9 @@ class FmuComponent(Component):
         self.description = description
         self.fmi = 3 if description.fmiVersion == "3.0" else 2
         self.variables = (_fmi3_variables if self.fmi == 3 else _fmi2_variables)(description)
+        self._other_types = {_FMI2_ELEMENT.sub(r"\g<base>", v.name): v.type
+                             for v in description.modelVariables
+                             if v.type not in ("Real", "Float64")}
         self.interface = tuple(interface)
         self.validate(self.interface)
 
@@ -232,10 +236,12 @@ class FmuComponent(Component):
         self._latest: dict[str, object] = {}
 
         self._unzipdir = extract(str(self.path))
+        # the extracted files go even if finish() is never called
+        self._cleanup = weakref.finalize(self, shutil.rmtree, self._unzipdir, True)
         try:
             self._instantiate(parameters or {})
         except BaseException:
-            shutil.rmtree(self._unzipdir, ignore_errors=True)
+            self._cleanup()
             raise
 
     # ---- validation -----------------------------------------------------------------
@@ -250,7 +256,9 @@ class FmuComponent(Component):
             field = f"{self.path.name}: variable {spec.name!r}"
             found = self.variables.get(spec.name)
             if found is None:
-                raise FmuInterfaceError(field, expected, "missing")
+                other = self._other_types.get(spec.name)
+                raise FmuInterfaceError(field, expected,
+                                        f"its type is {other}" if other else "missing")
             if found.causality != spec.causality:
                 raise FmuInterfaceError(field, expected, f"its causality is {found.causality!r}")
             if tuple(found.shape) != tuple(spec.shape):
@@ -319,8 +327,6 @@ class FmuComponent(Component):
             self._call("enterInitializationMode", self.slave.enterInitializationMode)
             self._set_raw = self.slave.fmi2SetReal
             self._get_raw = self.slave.fmi2GetReal
-        if self.slave.component is None:
-            raise FmuCallError(f"{self.path.name}: instantiation failed ({'; '.join(self.log)})")
         self._instantiated = True
         self._set_parameters(parameters)
         self._write_inputs()
@@ -358,6 +364,11 @@ class FmuComponent(Component):
         except FMICallException as exc:
             messages = "; ".join(self.log[first:]) or "no log message"
             raise FmuCallError(f"{self.path.name}: {what} failed: {messages} ({exc})") from None
+        except Exception as exc:  # fmpy raises a bare Exception when instantiation returns NULL
+            if what != "instantiate":
+                raise
+            messages = "; ".join(self.log[first:]) or "no log message"
+            raise FmuCallError(f"{self.path.name}: instantiate failed: {messages} ({exc})") from None
 
     def _raw_set(self, refs, n_refs, values, n_values):
         if self.fmi == 3:
@@ -417,6 +428,5 @@ class FmuComponent(Component):
             except Exception:  # a failed FMU may refuse terminate; freeing still matters
                 pass
             self.slave.freeInstance()
-        if getattr(self, "_unzipdir", None):
-            shutil.rmtree(self._unzipdir, ignore_errors=True)
-            self._unzipdir = None
+        if getattr(self, "_cleanup", None):
+            self._cleanup()

@@ -182,3 +182,19 @@ def test_cli_build_and_validate(capsys):
     assert "variable 'speed_setpoint': must be an input" in capsys.readouterr().err
     assert main(["fmus", "validate", "no/such.fmu"]) == 2
     assert main(["fmus", "build", "--model", "ball_mill"]) == 2
+
+
+def test_fmu_from_other_sources_is_refused_at_instantiation(tmp_path):
+    import zipfile
+
+    source = fmu_path("crusher")
+    corrupted = tmp_path / "stale_crusher.fmu"
+    with zipfile.ZipFile(source) as src, zipfile.ZipFile(corrupted, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == "modelDescription.xml":
+                data = data.replace(b'instantiationToken="{', b'instantiationToken="{0')
+            dst.writestr(item, data)
+    with pytest.raises(FmuCallError, match="stale_crusher.fmu: instantiate failed: "
+                                           "instantiationToken does not match"):
+        FmuComponent(corrupted, interface=CRUSHER_INTERFACE)

@@ -15,7 +15,7 @@ from fmu_scenario import run_crusher_scenario
 pythonfmu = pytest.importorskip("pythonfmu", reason="pythonfmu is a test extra (pip install -e .[test])")
 
 USER_CRUSHER = '''
-from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
+from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real
 
 DIAMETERS = [1e-5 * (10 ** (1 / 3)) ** k for k in range(16)]
 
@@ -38,6 +38,9 @@ class UserJawCrusher(Fmi2Slave):
                                         setter=lambda v, k=k: self.zone.__setitem__(k, v)))
         for name in OUTPUTS:
             self.register_variable(Real(name, causality=Fmi2Causality.output))
+        if INTEGER_ENERGY:
+            self.register_variable(Integer("energy", causality=Fmi2Causality.output,
+                                           getter=lambda: int(self.energy)))
         for i in range(16):
             for j in range(16):
                 self.register_variable(Real(f"fragmentation_map[{i + 1},{j + 1}]",
@@ -59,11 +62,12 @@ class UserJawCrusher(Fmi2Slave):
 '''
 
 
-def _build(tmp_path, outputs):
+def _build(tmp_path, outputs, integer_energy=False):
     from pythonfmu.builder import FmuBuilder
 
     script = tmp_path / "user_jaw_crusher.py"
-    script.write_text(textwrap.dedent(USER_CRUSHER).replace("OUTPUTS", repr(outputs)))
+    script.write_text(textwrap.dedent(USER_CRUSHER).replace("OUTPUTS", repr(outputs))
+                      .replace("INTEGER_ENERGY", repr(integer_energy)))
     return FmuBuilder.build_FMU(script, dest=tmp_path)
 
 
@@ -83,3 +87,10 @@ def test_user_fmu_lacking_a_variable_is_refused(tmp_path):
     assert str(info.value) == (
         "UserJawCrusher.fmu: variable 'energy': must be an output Float64 variable, "
         "a scalar (missing)")
+
+
+def test_user_fmu_with_wrongly_typed_variable_is_refused(tmp_path):
+    path = _build(tmp_path, ("torque", "power"), integer_energy=True)
+    with pytest.raises(FmuInterfaceError, match="variable 'energy': must be an output Float64 "
+                                                "variable, a scalar \\(its type is Integer\\)"):
+        FmuComponent(path, interface=CRUSHER_INTERFACE)
