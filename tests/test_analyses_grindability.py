@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from cosim.analyses import grindability, sensitivity
-from cosim.analyses.tracking import F_COLUMNS, origins
+from cosim.analyses.tracking import F_COLUMNS
 from cosim.blockmodel import ConstantHardness, QuadraticHardness
 from cosim.errors import ValidationError
 from cosim.events import EventStore
@@ -103,8 +103,8 @@ def mill_scene(seed: int, *, loads: int = 40, dt: float = 1.0, mean_residence: f
     signals = pd.DataFrame({"time": times, "grindability_t_kwh": observed,
                             "mass_in_mill": held})
     feed, product = table[table.type == "enter"], table[table.type == "product"]
-    where = origins(table)
-    x = where.loc[where.asset == "left", "x"]
+    appear = table[(table.type == "appear") & (table.asset == "left")]
+    x = pd.Series(appear["x"].to_numpy(), index=appear["particle_id"].to_numpy())
     return signals, feed, product, x, table
 
 

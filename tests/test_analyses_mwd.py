@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from cosim.analyses import mwd as mwd_analysis
-from cosim.analyses.tracking import occupancy_sum, origins, residence_intervals
+from cosim.analyses.tracking import occupancy_sum, residence_intervals
 from cosim.blockmodel import ConstantHardness, QuadraticHardness, mwd_signal
 from cosim.errors import ValidationError
 from cosim.events import EventStore
@@ -144,4 +144,31 @@ def test_missing_mwd_is_a_clear_error():
         mwd_analysis.fit_mwd_exponent(times, torque, stays, mwd.iloc[:10])
     with pytest.raises(ValidationError, match="asset"):
         residence_intervals(events.particles(), "mill")
-    assert len(origins(events.particles())) == len(mwd)
+
+
+def test_mwd_survey_records_the_signal_of_new_particles_once():
+    from types import SimpleNamespace
+
+    store = ParticleStore()
+    left = SimpleNamespace(origin=np.array([-80.0, -1.0, 8.0]), length=300.0, face_width=1.0,
+                           face_height=3.0, hardness=QuadraticHardness(0.0, 100.0))
+    right = SimpleNamespace(origin=np.array([70.0, -1.0, 8.0]), length=300.0, face_width=2.0,
+                            face_height=3.0, hardness=ConstantHardness(1.0))
+    survey = mwd_analysis.MwdSurvey(store, {"left": left, "right": right}, location_error=0.0,
+                                    rng=np.random.default_rng(0))
+    x = np.array([0.0, 25.0, 50.0])
+    f = blasted_fractions(np.random.default_rng(0), 1)[0]
+    store.add(mass=np.full(3, 100.0), f=f, grade=0.2, hardness=1.0,
+              origin=left.origin + np.column_stack((x, np.full(3, 0.5), np.ones(3))))
+    survey.step(0.0, 0.5)
+    store.add(mass=100.0, f=f, grade=0.8, hardness=1.0, origin=right.origin + [5.0, 1.0, 1.0])
+    store.attribute("mwd")[0] = -1.0         # a later step must not survey old particles again
+    survey.step(0.5, 0.5)
+    table = survey.table()
+    np.testing.assert_allclose(table["mwd"].to_numpy(),
+                               np.r_[QuadraticHardness(0.0, 100.0)(x) ** 0.4, 1.0])
+    assert list(table["source"]) == ["left", "left", "left", "right"]
+    np.testing.assert_allclose(table["x"], [0.0, 25.0, 50.0, 5.0])
+    assert store.attribute("mwd")[0] == -1.0
+    with pytest.raises(ValidationError, match="location_error"):
+        mwd_analysis.MwdSurvey(store, {}, location_error=-1.0, rng=np.random.default_rng(0))

@@ -101,21 +101,6 @@ def occupancy_sum(t_in, t_out, weights, times) -> np.ndarray:
     return out[:, 0] if single else out
 
 
-def origins(particles: pd.DataFrame, appear_type: str = "appear") -> pd.DataFrame:
-    """Position of origin [m] of every particle: its ``appear`` event's x, y, z.
-
-    Returns a DataFrame indexed by ``particle_id`` with columns ``x``, ``y``,
-    ``z``, ``asset`` (the source) and ``origin_block``.
-    """
-    _check_table(particles)
-    appear = particles[particles["type"] == appear_type]
-    if appear.empty:
-        raise ValidationError("particles", f"a table with {appear_type!r} events",
-                              "no particle appears at a source")
-    cols = [c for c in ("x", "y", "z", "asset", "origin_block") if c in appear.columns]
-    return appear.drop_duplicates("particle_id").set_index("particle_id")[cols]
-
-
 def moving_average(values, times, window: float) -> np.ndarray:
     """Trailing moving average over ``window`` [s] of a sampled signal (paper eq. observation).
 
