@@ -363,6 +363,8 @@ class FmuComponent(Component):
             return function(*args, **kwargs)
         except FMICallException as exc:
             messages = "; ".join(self.log[first:]) or "no log message"
+            if what == "doStep":
+                what = f"doStep at t = {args[1]:g} s"
             raise FmuCallError(f"{self.path.name}: {what} failed: {messages} ({exc})") from None
         except Exception as exc:  # fmpy raises a bare Exception when instantiation returns NULL
             if what != "instantiate":
@@ -407,13 +409,14 @@ class FmuComponent(Component):
         self.inputs[name] = value
 
     def step(self, t: float, dt: float) -> None:
+        if not self._instantiated:
+            raise FmuCallError(f"{self.path.name}: step after finish(); load the FMU again")
         self._write_inputs()
         if self.fmi == 3:
-            self._call(f"doStep at t = {t:g} s", self.slave.fmi3DoStep, self.slave.component,
+            self._call("doStep", self.slave.fmi3DoStep, self.slave.component,
                        t, dt, True, *self._flag_refs)
         else:
-            self._call(f"doStep at t = {t:g} s", self.slave.fmi2DoStep, self.slave.component,
-                       t, dt, True)
+            self._call("doStep", self.slave.fmi2DoStep, self.slave.component, t, dt, True)
         self._read_outputs()
 
     def outputs(self) -> dict[str, object]:

@@ -198,3 +198,10 @@ def test_fmu_from_other_sources_is_refused_at_instantiation(tmp_path):
     with pytest.raises(FmuCallError, match="stale_crusher.fmu: instantiate failed: "
                                            "instantiationToken does not match"):
         FmuComponent(corrupted, interface=CRUSHER_INTERFACE)
+
+
+def test_step_after_finish_is_an_error_not_a_crash():
+    fmu = FmuComponent(fmu_path("crusher"), interface=CRUSHER_INTERFACE)
+    fmu.finish()
+    with pytest.raises(FmuCallError, match="crusher.fmu: step after finish"):
+        fmu.step(0.0, 0.5)
