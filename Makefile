@@ -28,6 +28,7 @@ setup: $(STAMP) $(FMU_STAMP)
 
 demo: setup
 	$(BIN)/python examples/foundation_demo.py --out $(OUT)/demo
+	$(BIN)/minetwin simulate examples/step_response.toml --until 600 --out $(OUT)/demo/mine
 	$(BIN)/minetwin integration-test --duration 30 --speed 1 --out $(OUT)/demo/integration
 
 test: setup

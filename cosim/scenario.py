@@ -421,6 +421,7 @@ def build(config: dict, *, seed: int | None = None, storage_model: str | None = 
     cfg = validate(cfg)
     sim = cfg["simulation"]
     window = sim["sensor_window_s"]
+    sample = sim["record_every_s"]      # virtual sensors sample at the recording interval
     rng = np.random.default_rng(sim["seed"])
     events = EventStore(events_path) if events_path is not None else None
     plant = Plant(ParticleStore(capacity=4096), events, rng)
@@ -445,7 +446,8 @@ def build(config: dict, *, seed: int | None = None, storage_model: str | None = 
     mcfg = cfg["mill"]
     mill = Mill("mill", plant, location=mcfg["position_m"],
                 product_threshold=mcfg["product_threshold_kg"],
-                product_event_interval=mcfg["product_event_interval_s"], sensor_window=window)
+                product_event_interval=mcfg["product_event_interval_s"], sensor_window=window,
+                sensor_interval=sample)
     pcfg, c2 = cfg["stockpile"], cfg["conveyors"]["stockpile_to_mill"]
     outlet = pcfg["outlet_m"]
     belt_out = BeltConveyor("conveyor_stockpile_mill", plant, start=outlet,
@@ -454,7 +456,7 @@ def build(config: dict, *, seed: int | None = None, storage_model: str | None = 
     stockpile = Stockpile("stockpile", plant, model=_storage(pcfg, [sim["seed"], 1]),
                           location=pcfg["position_m"], outlet=outlet, downstream=belt_out,
                           capacity=pcfg["capacity_kg"], discharge=pcfg["discharge"],
-                          sensor_window=window)
+                          sensor_window=window, sensor_interval=sample)
     ccfg, c1 = cfg["crusher"], cfg["conveyors"]["crusher_to_stockpile"]
     belt_in = BeltConveyor("conveyor_crusher_stockpile", plant, start=ccfg["position_m"],
                            end=pcfg["position_m"], downstream=stockpile,
@@ -462,7 +464,8 @@ def build(config: dict, *, seed: int | None = None, storage_model: str | None = 
                            length=c1["length_m"])
     crusher = JawCrusher("crusher", plant, location=ccfg["position_m"], downstream=belt_in,
                          zone_capacity=ccfg["zone_capacity_kg"],
-                         jaw_throughput=ccfg["jaw_throughput_kg_s"], sensor_window=window)
+                         jaw_throughput=ccfg["jaw_throughput_kg_s"], sensor_window=window,
+                         sensor_interval=sample)
     trucks = [HaulTruck(t["name"], plant, route=[sources[r] for r in t["route"]],
                         crusher=crusher, payload=t["payload_kg"], speed=t["speed_m_s"],
                         load_time=t["load_time_s"], dump_time=t["dump_time_s"],

@@ -94,7 +94,14 @@ class StorageModel:
             self._credit_kg = 0.0
             return order
         self._credit_kg += rate * dt
-        masses = self.particles.mass[self.particles.slots(order)]
+        # Only the head of the queue can leave in one step: look at a prefix
+        # that grows until its mass exceeds the credit (O(leaving), not O(held)).
+        head = 64
+        while True:
+            masses = self.particles.mass[self.particles.slots(order[:head])]
+            if head >= order.size or masses.sum() > self._credit_kg:
+                break
+            head *= 4
         count = int(np.searchsorted(np.cumsum(masses), self._credit_kg, side="right"))
         self._credit_kg -= float(masses[:count].sum())
         leaving = order[:count]
@@ -143,9 +150,13 @@ class MixingStorage(StorageModel):
     """Perfect mixing: every held kilogram is equally likely to leave next.
 
     The order of leaving is a mass-weighted random permutation drawn with
-    the scenario's generator (Efraimidis-Spirakis keys u**(1/m)), redrawn
-    whenever material arrives, so the outflow composition equals the
-    storage composition in expectation.
+    the scenario's generator: each particle gets an exponential clock with
+    rate m (the Efraimidis-Spirakis key -log(u)/m) and particles leave in
+    clock order, so the next to leave is particle i with probability
+    m_i / sum m. The clocks are memoryless, so an arrival gets its clock
+    after the last one that left (now + E/m) and is merged into the order
+    in O(held) instead of redrawing every key: the outflow composition
+    equals the storage composition in expectation at every moment.
 
     Parameters
     ----------
@@ -159,12 +170,17 @@ class MixingStorage(StorageModel):
         super().__init__()
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self._order = np.empty(0, dtype=np.uint64)
+        self._clock = np.empty(0)        # leaving clock of each held particle, ascending
+        self._now = 0.0                  # clock of the last particle that left
 
     def receive(self, ids, t: float) -> None:
-        held = np.concatenate((self._order, np.asarray(ids, dtype=np.uint64)))
-        masses = self.particles.mass[self.particles.slots(held)]
-        keys = np.log(self.rng.random(held.size)) / masses
-        self._order = held[np.argsort(-keys, kind="stable")]
+        ids = np.asarray(ids, dtype=np.uint64)
+        masses = self.particles.mass[self.particles.slots(ids)]
+        clocks = self._now + self.rng.standard_exponential(ids.size) / masses
+        arrival = np.argsort(clocks, kind="stable")
+        at = np.searchsorted(self._clock, clocks[arrival], side="right")
+        self._clock = np.insert(self._clock, at, clocks[arrival])
+        self._order = np.insert(self._order, at, ids[arrival])
 
     def held_ids(self) -> np.ndarray:
         return self._order
@@ -182,6 +198,9 @@ class MixingStorage(StorageModel):
         return ids, masses * fraction
 
     def _forget(self, ids: np.ndarray) -> None:
+        if ids.size:
+            self._now = float(self._clock[ids.size - 1])
+        self._clock = self._clock[ids.size:]
         self._order = self._order[ids.size:]
 
 

@@ -66,13 +66,15 @@ class JawCrusher(Asset):
         Receives the crushed particles (the first conveyor).
     sensor_window : float
         Moving-average window of the zone's virtual sensors [s] (30).
+    sensor_interval : float
+        Least time between virtual-sensor samples [s] (default 0: every step).
     """
 
     input_names = ("fragmentation_map", "discharge_enabled")
 
     def __init__(self, name: str, plant: Plant, *, location, downstream,
                  zone_capacity: float = 900.0, jaw_throughput: float = 1000.0,
-                 sensor_window: float = 30.0):
+                 sensor_window: float = 30.0, sensor_interval: float = 0.0):
         super().__init__(name, plant, location=location)
         self.zone_owner = plant.register(f"{name}_zone")
         self.zone_name = f"{name}_zone"
@@ -87,7 +89,7 @@ class JawCrusher(Asset):
         self._passed_kg = 0.0
         self._zone_hardness_mass = np.zeros(16)
         self._zone_mass = 0.0
-        self._sensors = AssetSensors(self.zone_owner, sensor_window)
+        self._sensors = AssetSensors(self.zone_owner, sensor_window, sensor_interval)
         self._readings = self._sensors.readings
 
     def _accept(self, ids: np.ndarray, t: float) -> None:
@@ -101,15 +103,15 @@ class JawCrusher(Asset):
         else:
             self._credit = 0.0
         self._refill(t_end)
-        if self._zone.size:
-            slots = store.slots(self._zone)
+        slots = store.slots(self._zone)
+        if slots.size:
             mass = store.mass[slots]
             self._zone_mass = float(mass.sum())
             self._zone_hardness_mass = (mass * store.hardness[slots]) @ store.f[slots]
         else:
             self._zone_mass = 0.0
             self._zone_hardness_mass = np.zeros(16)
-        self._readings = self._sensors.sample(store, t_end)
+        self._readings = self._sensors.sample(store, t_end, slots)
 
     def _pass_jaw(self, t: float, dt: float) -> None:
         store = self.particles

@@ -52,13 +52,15 @@ class Mill(Asset):
         (default "exponential").
     sensor_window : float
         Moving-average window of the charge's virtual sensors [s] (30).
+    sensor_interval : float
+        Least time between virtual-sensor samples [s] (default 0: every step).
     """
 
     input_names = OPERATOR_INPUTS
 
     def __init__(self, name: str, plant: Plant, *, location, product_threshold: float = 0.01,
                  product_event_interval: float = 10.0, method: str = "exponential",
-                 sensor_window: float = 30.0):
+                 sensor_window: float = 30.0, sensor_interval: float = 0.0):
         super().__init__(name, plant, location=location)
         self.product_threshold = float(product_threshold)
         self.product_event_interval = float(product_event_interval)
@@ -69,7 +71,7 @@ class Mill(Asset):
         self._charge = np.zeros(16)
         self._product_kg = 0.0
         self._product_rate = 0.0
-        self._sensors = AssetSensors(self.owner, sensor_window)
+        self._sensors = AssetSensors(self.owner, sensor_window, sensor_interval)
         self._readings = self._sensors.readings
 
     def _accept(self, ids: np.ndarray, t: float) -> None:
@@ -101,12 +103,9 @@ class Mill(Asset):
                 escaped_total += self._report_product(slots, ground_out, t_end)
         self._product_kg += escaped_total
         self._product_rate = escaped_total / dt
-        if self._ids.size:
-            slots = store.slots(self._ids)
-            self._charge = store.mass[slots] @ store.f[slots]
-        else:
-            self._charge = np.zeros(16)
-        self._readings = self._sensors.sample(store, t_end)
+        slots = store.slots(self._ids)
+        self._charge = store.mass[slots] @ store.f[slots] if slots.size else np.zeros(16)
+        self._readings = self._sensors.sample(store, t_end, slots)
 
     def _report_product(self, slots, ground_out, t: float) -> float:
         """Record "product" events and remove ground-out particles; their remainder [kg]."""

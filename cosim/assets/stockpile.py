@@ -48,13 +48,16 @@ class Stockpile(Asset):
         is 0. Rates in [0, 2000] kg/s (paper: up to 2 t/s).
     downstream : Asset
         Receives the discharged particles (the mill conveyor).
+    sensor_window, sensor_interval : float
+        Moving-average window of the pile's virtual sensors [s] (30) and
+        least time between their samples [s] (0: every step).
     """
 
     input_names = ("discharge_rate",)
 
     def __init__(self, name: str, plant: Plant, *, model: StorageModel, location, outlet,
                  downstream, capacity: float = 2.0e6, discharge=((0.0, 0.0),),
-                 sensor_window: float = 30.0):
+                 sensor_window: float = 30.0, sensor_interval: float = 0.0):
         super().__init__(name, plant, location=location)
         self.outlet = tuple(float(c) for c in outlet)
         self.model = model.bind(plant.particles, self.owner)
@@ -69,7 +72,7 @@ class Stockpile(Asset):
         self._held_kg = 0.0
         self._discharged_kg = 0.0
         self._rate = 0.0
-        self._sensors = AssetSensors(self.owner, sensor_window)
+        self._sensors = AssetSensors(self.owner, sensor_window, sensor_interval)
         self._readings = self._sensors.readings
 
     def scheduled_rate(self, t: float) -> float:
