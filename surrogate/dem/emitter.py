@@ -27,13 +27,18 @@ from surrogate.dem.config import DemConfig
 
 def split_lot(cfg: DemConfig, mass_kg: float, rng: np.random.Generator) -> np.ndarray:
     """Tracked masses [kg] of the pseudo-particles of one lot (sum = ``mass_kg``)."""
-    mean_mass = float(cfg.sphere_mass(0.5 * (cfg.diameter_min + cfg.diameter_max)))
+    mean_mass = mean_particle_mass(cfg)
     count = max(1, int(round(mass_kg / mean_mass)))
-    volumes = rng.uniform(cfg.diameter_min, cfg.diameter_max, count) ** 3
+    volumes = rng.uniform(cfg.diameter_min ** 3, cfg.diameter_max ** 3, count)
     masses = mass_kg * volumes / volumes.sum()
     # put the rounding residue on the last particle so the sum is mass_kg
     masses[-1] = mass_kg - masses[:-1].sum()
     return masses
+
+
+def mean_particle_mass(cfg: DemConfig) -> float:
+    """Mean pseudo-particle mass [kg]: disk volumes uniform between d_min^3 and d_max^3."""
+    return float(0.5 * (cfg.sphere_mass(cfg.diameter_min) + cfg.sphere_mass(cfg.diameter_max)))
 
 
 def inlet_positions(cfg: DemConfig, inlet: int, radius: np.ndarray, existing_pos: np.ndarray,
