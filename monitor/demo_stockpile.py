@@ -1,6 +1,9 @@
 """A stand-alone stockpile process for demonstrating and testing the monitor.
 
-It runs the real stockpile asset (``surrogate.stockpile.StockpileAsset``)
+With ``--scenario FILE`` it runs the mine simulator (``cosim.scenario``, what
+``minetwin simulate`` runs) and serves its stockpile through
+``surrogate.rest.RestComponent``, paced to ``--speed``. Without it, it runs
+the real stockpile asset (``surrogate.stockpile.StockpileAsset``)
 with its REST interface (``surrogate.rest``) in paced real time, fed by an
 inbound conveyor written out here instead of the OPC UA process simulator:
 one bin every ``bin_interval_s`` from two sources that alternate like the
@@ -10,8 +13,9 @@ feeder runs at ``discharge_rate_kg_s`` from ``discharge_start_s`` on (default
 0, so that material flows through the pile from the start of a short demo;
 the inflow exceeds it, so the pile grows).
 
-Usage: ``python -m monitor.demo_stockpile --port 0 --speed 4`` prints
-``stockpile REST on http://127.0.0.1:PORT`` on stdout once it serves.
+Usage: ``python -m monitor.demo_stockpile --port 0 --speed 4 [--scenario
+examples/step_response.toml]`` prints ``stockpile REST on
+http://127.0.0.1:PORT`` on stdout once it serves.
 
 Parameters (``DemoFeed``)
 -------------------------
@@ -33,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import math
 import signal
 import sys
 import time as wallclock
@@ -99,6 +104,28 @@ async def run(port: int, host: str, speed: float, dt: float, model: str, seed: i
     return 0
 
 
+def run_scenario(path: str, port: int, host: str, speed: float, duration: float,
+                 display_radius_m: float) -> int:
+    """Run the mine simulator's scenario ``path`` and serve its stockpile."""
+    from cosim.scenario import build, load
+    from surrogate.rest import RestComponent
+
+    simulation = build(load(path), progress=False)
+    pile = simulation.assets["stockpile"]
+    rest = RestComponent.attach(
+        simulation.master, simulation.plant.particles, pile.model,
+        lambda: pile.outputs()["discharge_rate_kg_s"],
+        host=host, port=port, realtime_factor=speed, display_radius_m=display_radius_m)
+    print(f"stockpile REST on http://{host}:{rest.port}", flush=True)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    until = duration if math.isfinite(duration) else simulation.config["simulation"]["until_s"]
+    try:
+        simulation.run(until)
+    finally:
+        simulation.close()
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m monitor.demo_stockpile",
@@ -112,11 +139,18 @@ def main(argv=None) -> int:
     parser.add_argument("--model", default="fifo", help="storage model (fifo)")
     parser.add_argument("--seed", type=int, default=0, help="seed (0)")
     parser.add_argument("--duration", type=float, default=float("inf"),
-                        help="simulated seconds to run (until stopped)")
+                        help="simulated seconds to run (until stopped; with --scenario: "
+                             "the scenario's until_s)")
+    parser.add_argument("--scenario", help="run this mine-simulator scenario (TOML) instead")
+    parser.add_argument("--display-radius", type=float, default=30.0,
+                        help="schematic pile radius [m] with --scenario (30)")
     args = parser.parse_args(argv)
     if not (args.speed > 0 and args.dt > 0):
         print("demo_stockpile: error: --speed and --dt must be > 0", file=sys.stderr)
         return 2
+    if args.scenario:
+        return run_scenario(args.scenario, args.port, args.host, args.speed, args.duration,
+                            args.display_radius)
     return asyncio.run(run(args.port, args.host, args.speed, args.dt, args.model, args.seed,
                            args.duration))
 

@@ -16,6 +16,9 @@ Two parts:
     ``particle_table(limit, offset)``, ``predicted_feed(horizon_s)``. The
     owner of the storage calls ``record()`` after each step to extend the
     time series.
+``RestComponent.attach(master, particles, storage, discharge_rate)``
+    serves a storage asset of a running co-simulation master (the mine
+    simulator), optionally paced to real time.
 ``create_app(asset)`` / ``start_rest(asset, host, port)``
     the aiohttp application serving any object with that protocol
     (``StorageView`` or the stockpile asset), read-only, on 127.0.0.1 by
@@ -38,12 +41,14 @@ from __future__ import annotations
 import asyncio
 import math
 import threading
+import time as wallclock
 from collections import deque
 
 import numpy as np
 from aiohttp import web
 
 from cosim.errors import ValidationError
+from cosim.master import Component
 from cosim.sensors import observe
 from cosim.sizes import d_passing
 
@@ -457,6 +462,88 @@ class RestThread:
 def serve_in_thread(asset, host: str = "127.0.0.1", port: int = 0, lock=None) -> RestThread:
     """Start the REST server for ``asset`` in a background thread."""
     return RestThread(asset, host, port, lock)
+
+
+class RestComponent(Component):
+    """Serve a storage asset of a running co-simulation (``cosim.master``).
+
+    ``RestComponent.attach(master, ...)`` adds it as the master's last
+    component and its ``gate`` as the first: the gate takes ``lock`` at the
+    start of every step, this component records the totals row at the end,
+    paces the run to ``realtime_factor`` simulated seconds per wall second
+    (None: as fast as possible, pausing ``READ_WINDOW_S`` per step) and
+    gives the lock back. So the REST thread reads only between steps, a
+    consistent state, and freely once the run has returned.
+
+    Parameters
+    ----------
+    particles, storage : the plant's ParticleStore and the bound storage model
+    discharge_rate : callable () -> float
+        Current feeder rate [kg/s].
+    host, port : where to serve (127.0.0.1, 0: a free port; ``self.port``)
+    realtime_factor : float or None
+        Simulated seconds per wall second, default None.
+    display_radius_m : float
+        Schematic pile radius [m] for models without geometry, default 10.
+    """
+
+    name = "rest"
+    READ_WINDOW_S = 0.002
+    """Wall time [s] the REST thread gets per step when the run is not paced."""
+
+    def __init__(self, particles, storage, discharge_rate, *, host: str = "127.0.0.1",
+                 port: int = 0, realtime_factor: float | None = None,
+                 display_radius_m: float = 10.0):
+        super().__init__()
+        if realtime_factor is not None and not realtime_factor > 0:
+            raise ValidationError("realtime_factor", "> 0 or None", f"got {realtime_factor!r}")
+        self.time = 0.0
+        self.realtime_factor = realtime_factor
+        self.view = StorageView(particles, storage, lambda: self.time, discharge_rate,
+                                display_radius_m=display_radius_m)
+        self.view.record()
+        self.lock = threading.Lock()
+        self.gate = _LockGate(self.lock)
+        self.server = serve_in_thread(self.view, host, port, self.lock)
+        self.port = self.server.port
+        self._start = None
+
+    @classmethod
+    def attach(cls, master, particles, storage, discharge_rate, **options) -> "RestComponent":
+        """Build one, add it last to ``master`` and its gate first; return it."""
+        rest = master.add(cls(particles, storage, discharge_rate, **options))
+        master.components.insert(0, rest.gate)
+        return rest
+
+    def step(self, t: float, dt: float) -> None:
+        self.time = t + dt
+        self.view.record()
+        now = wallclock.monotonic()
+        if self._start is None:
+            self._start = now - t / self.realtime_factor if self.realtime_factor else now
+        pause = (self._start + self.time / self.realtime_factor - now
+                 if self.realtime_factor else 0.0)
+        if self.lock.locked():
+            self.lock.release()
+        wallclock.sleep(max(pause, self.READ_WINDOW_S))
+
+    def finish(self) -> None:
+        if self.lock.locked():  # a component failed mid-step
+            self.lock.release()
+        self.server.stop()
+
+
+class _LockGate(Component):
+    """First component of the master: takes the REST lock for the step."""
+
+    name = "rest_gate"
+
+    def __init__(self, lock):
+        super().__init__()
+        self.lock = lock
+
+    def step(self, t: float, dt: float) -> None:
+        self.lock.acquire()
 
 
 # ------------------------------------------------------------ OpenAPI document

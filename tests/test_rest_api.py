@@ -11,6 +11,7 @@ values are recomputed here from the particles.
 from __future__ import annotations
 
 import json
+import threading
 import urllib.error
 import warnings
 import urllib.request
@@ -20,10 +21,11 @@ import pytest
 import schemathesis
 from hypothesis import HealthCheck, settings
 
+from cosim.errors import ValidationError
 from cosim.particles import ParticleStore
 from cosim.sizes import d_passing
 from cosim.storage import MixingStorage, make_storage
-from surrogate.rest import OPENAPI, StorageView, serve_in_thread
+from surrogate.rest import OPENAPI, RestComponent, StorageView, serve_in_thread
 from surrogate.rom.container import Container
 from surrogate.rom.grid import Grid, mass_field
 from surrogate.rom.model import OutOfTrainingRange, RomModel
@@ -292,6 +294,47 @@ def test_fifo_feed_is_the_oldest_bins():
     assert body["tracking_ids"] == [101, 102]
     profile_grades = [g for g in body["profile"]["grade"] if g is not None]
     assert profile_grades[0] == pytest.approx(0.8) and profile_grades[-1] == pytest.approx(0.2)
+
+
+def test_rest_component_serves_the_mine_simulator_stockpile():
+    """The stockpile of the mine simulator (what ``minetwin simulate`` runs),
+    read over REST while the master runs: every reading is the state at a
+    step boundary (equal to that step's row), and the rows equal the
+    simulator's own record of the stockpile mass."""
+    from cosim.scenario import build, load
+
+    try:
+        simulation = build(load("examples/step_response.toml"), progress=False)
+    except ValidationError as exc:
+        pytest.skip(f"mine simulator not runnable here (build the FMUs first): {exc}")
+    pile = simulation.assets["stockpile"]
+    rest = RestComponent.attach(simulation.master, simulation.plant.particles, pile.model,
+                                lambda: pile.outputs()["discharge_rate_kg_s"])
+    base = f"http://127.0.0.1:{rest.port}"
+    readings, stop = [], threading.Event()
+
+    def read_while_running():
+        while not stop.is_set():
+            readings.append(get(base, "/totals")[1])
+            assert get(base, "/fields?nx=6&ny=3")[0] == 200
+            assert get(base, "/particles?limit=100")[0] == 200
+
+    reader = threading.Thread(target=read_while_running)
+    reader.start()
+    try:
+        simulation.run(240.0)
+    finally:
+        stop.set()
+        reader.join()
+        history = {row["time_s"]: row for row in rest.view.history()}
+        simulation.close()
+    assert len(readings) >= 3
+    for reading in readings:
+        assert reading == json.loads(json.dumps(history[reading["time_s"]]).replace("NaN", "null"))
+    assert max(reading["held_mass_kg"] for reading in readings) > 0
+    recorded = simulation.timeseries["stockpile.mass_kg"]
+    for t, mass in recorded.items():
+        assert history[t]["held_mass_kg"] == pytest.approx(mass, rel=1e-12, abs=1e-9)
 
 
 BAD_PARAMETERS = [

@@ -293,7 +293,11 @@ function drawFeedChart(feed) {
     return;
   }
   const n = profile.t_s.length, bottom = 16, barW = w / n;
-  const mmax = Math.max(...profile.mass_kg.map((m) => m || 0), 1e-9);
+  const mmax = Math.max(...profile.mass_kg.map((m) => m || 0), 0);
+  if (!(mmax > 0)) {
+    ctx.fillText("nothing predicted to leave (feeder stopped or pile empty)", 4, h / 2);
+    return;
+  }
   for (let i = 0; i < n; i++) {
     const m = profile.mass_kg[i] || 0, g = profile.grade[i];
     const bh = (h - bottom - 4) * m / mmax;
