@@ -346,7 +346,8 @@ def plot(run, data: dict, summary: dict, out) -> list:
 
     zone = data["zone"]
     fig, ax = plt.subplots(figsize=(10, 4))
-    ax.plot(zone["time"], zone["hardness_true"], color="k", lw=1.2, label="true hardness")
+    ax.plot(zone["time"], zone["hardness_true"], color="k", lw=1.0, label="true hardness",
+            zorder=3)
     beta = data["fit"].beta
     ax.plot(zone["time"], zone[f"hardness_beta_{beta:g}"], lw=0.8,
             label=f"predicted from MWD, beta = {beta:.3f} (fit)")
