@@ -75,10 +75,10 @@ def _run(args, until: float):
     overrides = _parse_overrides(args.overrides)
     if args.run_dir is not None:
         return run_scenario(args.scenario, until=until, overrides=overrides, seed=args.seed,
-                            out=args.run_dir)
+                            out=args.run_dir, progress=True)
     with tempfile.TemporaryDirectory(prefix="minetwin-reference-") as tmp:
         run = run_scenario(args.scenario, until=until, overrides=overrides, seed=args.seed,
-                           out=Path(tmp))
+                           out=Path(tmp), progress=True)
         run.close()
         return run
 

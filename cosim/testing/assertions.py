@@ -55,6 +55,7 @@ def assert_mass_balance(source=None, *, mass_in_kg=None, mass_held_kg=None, mass
 
     Returns the worst relative error.
     """
+    __tracebackhide__ = True  # pytest shows the message, not these lines
     values = {"mass_in_kg": mass_in_kg, "mass_held_kg": mass_held_kg,
               "mass_out_kg": mass_out_kg}
     for key, value in values.items():
@@ -155,6 +156,7 @@ def assert_ids_accounted(entered, held=(), left=(), *, entered_mass=None, held_m
     See ``account_ids`` for the parameters. The message lists the offending
     ids (first 10) per kind of fault.
     """
+    __tracebackhide__ = True  # pytest shows the message, not these lines
     account = account_ids(entered, held, left, entered_mass=entered_mass, held_mass=held_mass,
                           left_mass=left_mass, split_allowed=split_allowed, rtol=rtol)
     if account.ok:
@@ -202,6 +204,7 @@ def assert_signal_within_band(time, values, ref_time, ref_values, *, atol: float
     magnitude, ``time_shift`` [s] the horizontal width of the band.
     Returns the ``SignalComparison``.
     """
+    __tracebackhide__ = True  # pytest shows the message, not these lines
     comparison = compare_signal(name, time, values, ref_time, ref_values,
                                 Tolerance(atol=atol, rtol=rtol, time_shift=time_shift))
     if not comparison.passed:
@@ -218,6 +221,7 @@ def assert_matches_reference(timeseries, reference, *, signals=None, tolerances=
     receives a PNG overlay of each failing signal. The message is the
     comparison table. Returns the ``ComparisonReport``.
     """
+    __tracebackhide__ = True  # pytest shows the message, not these lines
     from cosim.testing.reference import ReferenceResult, compare
 
     if not isinstance(reference, ReferenceResult):
@@ -309,6 +313,7 @@ def assert_step_response(time, values, *, step_time: float, before: tuple[float,
     Give any of ``gain`` (signal unit per input unit), ``ratio`` (after /
     before) and ``delay`` [s] as ``(low, high)``. Returns the measurement.
     """
+    __tracebackhide__ = True  # pytest shows the message, not these lines
     response = measure_step_response(time, values, step_time=step_time, before=before,
                                      after=after, input_change=input_change,
                                      smoothing=smoothing, crossing=crossing)

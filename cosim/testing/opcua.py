@@ -103,10 +103,12 @@ class ExchangeResult:
 
     def assert_mass_balance(self, rtol: float = 1e-9) -> float:
         """Mass discharged onto the stockpile = mass held + mass reported out."""
+        __tracebackhide__ = True
         return assert_mass_balance(self.report, rtol=rtol, where="the OPC UA stockpile exchange")
 
     def assert_ids_accounted(self, rtol: float = 1e-9):
         """Every tracking id that entered is held or has left, with all its mass, once."""
+        __tracebackhide__ = True
         pending = self.ledger.get("pending", 0)
         where = "the OPC UA stockpile exchange" + (
             f" ({pending} inbound record(s) still unacknowledged on the server)" if pending

@@ -137,6 +137,7 @@ def reference_check(request, tmp_path):
     plots = request.config.getoption("--minetwin-plots")
 
     def _check(timeseries, reference_csv, scenario=None, signals=None):
+        __tracebackhide__ = True
         spec = ReferenceSpec.from_scenario(scenario) if scenario is not None else None
         names = signals or (spec.signals if spec else None)
         if record:

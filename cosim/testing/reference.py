@@ -187,9 +187,9 @@ class ComparisonReport:
                    "band there", "outside", "result"]
         cells = [[_cell(row[h]) for h in headers] for row in self.rows()]
         widths = [max(len(h), *(len(r[j]) for r in cells)) for j, h in enumerate(headers)]
-        line = "  ".join(h.ljust(w) for h, w in zip(headers, widths))
+        line = "  ".join(h.ljust(w) for h, w in zip(headers, widths)).rstrip()
         rule = "  ".join("-" * w for w in widths)
-        body = ["  ".join(v.ljust(w) for v, w in zip(r, widths)) for r in cells]
+        body = ["  ".join(v.ljust(w) for v, w in zip(r, widths)).rstrip() for r in cells]
         verdict = ("all signals inside their bands" if self.passed else
                    f"{len(self.failed)} of {len(self.comparisons)} signal(s) outside their band")
         return "\n".join([line, rule, *body, verdict])

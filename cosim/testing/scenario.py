@@ -51,6 +51,36 @@ class ScenarioRun:
         if self.events is not None:
             self.events.close()
 
+    def assert_mass_balance(self, rtol: float = 1e-9) -> float:
+        """Plant-wide: mass in = mass held + mass out at the end (``summary.json``),
+        and at every recorded time (``plant.mass_balance_rel_error`` if recorded)."""
+        __tracebackhide__ = True
+        from cosim.testing.assertions import assert_mass_balance
+
+        worst = assert_mass_balance(self.summary, rtol=rtol, where="the plant")
+        column = "plant.mass_balance_rel_error"
+        if column in self.timeseries:
+            errors = self.timeseries[column].to_numpy()
+            bad = ~(errors <= rtol)
+            if bad.any():
+                i = int(bad.argmax())
+                raise AssertionError(
+                    f"mass balance of the plant broken at t = {self.timeseries.index[i]:g} s: "
+                    f"relative error {errors[i]:.3g} > rtol {rtol:g} (column {column}); "
+                    f"{int(bad.sum())} recorded time(s) affected")
+            worst = max(worst, float(errors.max()))
+        return worst
+
+    def assert_particle_ids_accounted(self):
+        """Every particle that appeared (event store) is in the plant or has left it, once."""
+        __tracebackhide__ = True
+        from cosim.testing.assertions import assert_ids_accounted
+
+        appeared = self.events.particles(type="appear")["particle_id"].to_numpy()
+        plant = self.simulation.plant
+        return assert_ids_accounted(appeared, held=plant.particles.id, left=plant.removed_ids,
+                                    kind="particle id", where="the plant")
+
 
 def apply_overrides(document: dict, overrides: dict | None) -> dict:
     """A copy of ``document`` with dotted keys set (``"stockpile.model": "mixing"``).
