@@ -64,6 +64,7 @@ class ClientOptions:
     server_certificate: Path | None = None
     insecure: bool = False
     model: str = "fifo"
+    storage_options: dict = field(default_factory=dict)
     seed: int = 0
     particle_mass_kg: float = 100.0
     dt_s: float = 0.5
@@ -99,7 +100,8 @@ class StockpileClient:
         self.o = options
         self.state = self._restore() or ClientState(
             StockpileAsset(options.model, seed=options.seed,
-                           particle_mass_kg=options.particle_mass_kg))
+                           particle_mass_kg=options.particle_mass_kg,
+                           storage_options=options.storage_options))
         self.inbox: dict[int, dict] = {}
         self.known_sequence = self.state.last_applied
         self.need_sync = True

@@ -101,7 +101,7 @@ def test_setpoint_and_belt_speed_ranges(plant):
             plant.set_discharge_rate(bad)
         assert err.value.status == "BadOutOfRange"
         assert "DischargeRateSetpoint" in err.value.message
-    assert plant.discharge_rate_setpoint == 240.0
+    assert plant.discharge_rate_setpoint == load_config()["sp201"]["discharge_rate_kg_s"]
     plant.set_discharge_rate(2000.0)
     with pytest.raises(ExchangeRefused):
         plant.set_belt_speed("cv101", 11.0)

@@ -19,6 +19,9 @@ def register(subparsers) -> None:
                         help="opc.tcp:// endpoint of the plant server")
     parser.add_argument("--model", default="fifo",
                         help="storage model: fifo, mixing, rom, dem or any registered name")
+    parser.add_argument("--model-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="keyword option of the storage model, repeatable (e.g. "
+                             "model=out/rom/model.npz for rom)")
     parser.add_argument("--user", default="surrogate", help="OPC UA user (role surrogate)")
     parser.add_argument("--password-file", type=Path, help="file whose first line is the password")
     parser.add_argument("--state-dir", type=Path, default=Path("out/stockpile"),
@@ -62,6 +65,12 @@ def run(args) -> int:
         value = getattr(args, name)
         if not 0 < value <= 3600:
             raise ValidationError(name, "in (0, 3600] s", f"got {value}")
+    storage_options = {}
+    for item in args.model_option:
+        key, sep, value = item.partition("=")
+        if not sep or not key.isidentifier():
+            raise ValidationError("model_option", "KEY=VALUE", f"got {item!r}")
+        storage_options[key] = _number_or_text(value)
     if args.password_file:
         if not args.password_file.is_file():
             raise ValidationError("password_file", "an existing file", f"{args.password_file}")
@@ -86,7 +95,7 @@ def run(args) -> int:
         client = StockpileClient(ClientOptions(
             server_url=args.server, username=args.user, password=password, certificate=cert,
             private_key=key, server_certificate=args.server_cert, insecure=args.insecure,
-            model=args.model, seed=args.seed, particle_mass_kg=args.particle_mass, dt_s=args.dt,
+            model=args.model, storage_options=storage_options, seed=args.seed, particle_mass_kg=args.particle_mass, dt_s=args.dt,
             cycle_s=args.cycle, lockstep=args.lockstep, period_s=args.period,
             duration_s=args.duration, checkpoint=args.checkpoint, summary=args.summary,
             node_map=args.node_map, rest_port=args.rest_port,
@@ -98,3 +107,12 @@ def run(args) -> int:
         return await client.run()
 
     return asyncio.run(main())
+
+
+def _number_or_text(text: str):
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
