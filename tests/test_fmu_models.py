@@ -137,3 +137,17 @@ def test_readme_documents_every_variable_with_unit_and_default(name):
         default = repr(v["start"]) if "start" in v else "computed"
         row = f"| `{v['name']}` | {v['causality']} | {shape} | {v.get('unit', '1')} | {default} |"
         assert row in readme, row
+
+
+def test_mill_calibration_gives_documented_residence_time_and_hardness_response():
+    from fmus.mill.calibrate import FEED_RATE, TARGET_RESIDENCE_TIME, crushed_feed, steady_state
+
+    feed = crushed_feed()
+    soft = steady_state(5.8e-5, 1.0, feed=feed)   # the default impact_energy (fmus/README.md)
+    hard = steady_state(5.8e-5, 1.5, feed=feed)
+    assert soft["residence_time_s"] == pytest.approx(TARGET_RESIDENCE_TIME, rel=0.02)
+    assert soft["holdup_kg"] == pytest.approx(TARGET_RESIDENCE_TIME * FEED_RATE, rel=0.02)
+    assert soft["power_W"] == pytest.approx(28e3, rel=0.05)
+    # harder ore grinds slower: the charge and the power grow (paper: ~+20 % in its transient)
+    assert 1.10 < hard["holdup_kg"] / soft["holdup_kg"] < 1.20
+    assert 1.10 < hard["power_W"] / soft["power_W"] < 1.20
