@@ -29,6 +29,7 @@ CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
 MINETWIN = str(Path(sys.executable).with_name("minetwin"))
+STEP_RESPONSE = Path(__file__).resolve().parents[1] / "examples" / "step_response.toml"
 
 
 def _ensure_chromium() -> None:
@@ -82,6 +83,35 @@ def get(url):
         return exc.code, json.loads(exc.read())
 
 
+def _launch(playwright):
+    return playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+
+
+def _check_shown_values_equal_rest(page, stockpile_url):
+    """The held mass and grade shown equal the stockpile's REST values at
+    the simulation time shown (the history row of that time)."""
+    shown = page.evaluate("""() => ({
+        time: Number(document.getElementById('sim-time').dataset.value),
+        mass: document.getElementById('held-mass').dataset.value,
+        massText: document.getElementById('held-mass').textContent,
+        grade: document.getElementById('grade').dataset.value,
+        gradeText: document.getElementById('grade').textContent})""")
+    status, history = get(f"{stockpile_url}/history?since={shown['time'] - 1e-6}")
+    assert status == 200
+    row = history["rows"][0]
+    assert row["time_s"] == shown["time"]
+    assert float(shown["mass"]) == row["held_mass_kg"] > 0
+    assert shown["massText"] == f"{row['held_mass_kg'] / 1000:.3f}"
+    assert float(shown["grade"]) == row["grade"]
+    assert shown["gradeText"] == f"{row['grade'] * 100:.2f}"
+    return shown
+
+
+def _start_monitor(stockpile_url):
+    return _start([MINETWIN, "monitor", "--stockpile", stockpile_url, "--port", "0"],
+                  r"http://127\.0\.0\.1:\d+/", stream="stderr")
+
+
 @pytest.fixture
 def processes():
     """Running stockpile and monitor; stops whatever is still running after the test."""
@@ -90,8 +120,7 @@ def processes():
     stockpile, match = _start_stockpile()
     running["stockpile"] = stockpile
     stockpile_url = match.group(0)
-    monitor, match = _start([MINETWIN, "monitor", "--stockpile", stockpile_url, "--port", "0"],
-                            r"http://127\.0\.0\.1:\d+/", stream="stderr")
+    monitor, match = _start_monitor(stockpile_url)
     running["monitor"] = monitor
     yield running, stockpile_url, match.group(0)
     for proc in running.values():
@@ -106,7 +135,7 @@ def test_monitor_page_against_a_running_stockpile(processes, tmp_path):
     shots = [tmp_path / "monitor_live.png", tmp_path / "monitor_unreachable.png",
              tmp_path / "monitor_recovered.png"]
     with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        browser = _launch(playwright)
         try:
             page = browser.new_page(viewport={"width": 1600, "height": 1000})
             requested, errors = [], []
@@ -121,21 +150,7 @@ def test_monitor_page_against_a_running_stockpile(processes, tmp_path):
             expect(page.locator("#status")).to_have_text("LIVE", timeout=15_000)
             page.wait_for_function("window.monitorState.updates >= 2", timeout=10_000)
 
-            # shown held mass and grade equal the REST values at the time shown
-            shown = page.evaluate("""() => ({
-                time: Number(document.getElementById('sim-time').dataset.value),
-                mass: document.getElementById('held-mass').dataset.value,
-                massText: document.getElementById('held-mass').textContent,
-                grade: document.getElementById('grade').dataset.value,
-                gradeText: document.getElementById('grade').textContent})""")
-            status, history = get(f"{stockpile_url}/history?since={shown['time'] - 1e-6}")
-            assert status == 200
-            row = history["rows"][0]
-            assert row["time_s"] == shown["time"]
-            assert float(shown["mass"]) == row["held_mass_kg"] > 0
-            assert shown["massText"] == f"{row['held_mass_kg'] / 1000:.3f}"
-            assert float(shown["grade"]) == row["grade"]
-            assert shown["gradeText"] == f"{row['grade'] * 100:.2f}"
+            _check_shown_values_equal_rest(page, stockpile_url)
             assert int(page.locator("#pile").get_attribute("data-drawn")) > 0
 
             # the monitor passes the stockpile's refusals through, and only its endpoints
@@ -203,6 +218,43 @@ def test_monitor_page_against_a_running_stockpile(processes, tmp_path):
         Path(copy_to).mkdir(parents=True, exist_ok=True)
         for shot in shots:
             shutil.copy(shot, Path(copy_to) / shot.name)
+
+
+def test_monitor_page_against_the_mine_simulator(tmp_path):
+    """The stockpile of the mine simulator (the step-response scenario that
+    ``minetwin simulate`` runs), served by RestComponent in real time x 25."""
+    _ensure_chromium()
+    sync_api = pytest.importorskip("playwright.sync_api")
+    stockpile, match = _start([sys.executable, "-m", "monitor.demo_stockpile", "--port", "0",
+                               "--speed", "25", "--scenario", str(STEP_RESPONSE)],
+                              r"http://127\.0\.0\.1:(\d+)", timeout=60)
+    monitor = None
+    try:
+        monitor, page_match = _start_monitor(match.group(0))
+        with sync_api.sync_playwright() as playwright:
+            browser = _launch(playwright)
+            try:
+                page = browser.new_page(viewport={"width": 1600, "height": 1000})
+                page.goto(page_match.group(0) + "?poll=400")
+                sync_api.expect(page.locator("#status")).to_have_text("LIVE", timeout=15_000)
+                # the first truck loads reach the stockpile after about 100 s
+                page.wait_for_function(
+                    "Number(document.getElementById('held-mass').dataset.value) > 0",
+                    timeout=30_000)
+                _check_shown_values_equal_rest(page, match.group(0))
+                page.select_option("#colour-by", "origin")
+                sync_api.expect(page.locator("#pile")).to_have_attribute("data-colour-by",
+                                                                         "origin")
+                page.screenshot(path=str(tmp_path / "monitor_mine_simulator.png"), full_page=True)
+            finally:
+                browser.close()
+    finally:
+        for proc in (stockpile, monitor):
+            if proc is not None:
+                _stop(proc)
+                proc.stdout.close()
+                proc.stderr.close()
+    assert (tmp_path / "monitor_mine_simulator.png").read_bytes()[:4] == b"\x89PNG"
 
 
 def test_monitor_command_refuses_a_bad_stockpile_url():

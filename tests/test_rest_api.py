@@ -14,6 +14,7 @@ import json
 import threading
 import urllib.error
 import warnings
+from pathlib import Path
 import urllib.request
 
 import numpy as np
@@ -304,7 +305,8 @@ def test_rest_component_serves_the_mine_simulator_stockpile():
     from cosim.scenario import build, load
 
     try:
-        simulation = build(load("examples/step_response.toml"), progress=False)
+        simulation = build(load(Path(__file__).resolve().parents[1] / "examples"
+                                / "step_response.toml"), progress=False)
     except ValidationError as exc:
         pytest.skip(f"mine simulator not runnable here (build the FMUs first): {exc}")
     pile = simulation.assets["stockpile"]
