@@ -57,3 +57,48 @@ def test_reference_check_records_then_passes_then_catches_a_change(pytester):
     ])
     overlays = list(plots.rglob("*.png"))
     assert [p.name for p in overlays] == ["crusher.power.png"]
+
+
+BROKEN_FMU_TEST = '''
+import shutil
+import zipfile
+
+import pytest
+
+from cosim.fmu import fmu_path
+
+SCENARIO = {scenario!r}
+
+
+def _without_power(tmp_path):
+    """The crusher FMU whose output 'power' was renamed: the asset's variable is missing."""
+    broken = tmp_path / "broken_crusher.fmu"
+    with zipfile.ZipFile(fmu_path("crusher")) as source, zipfile.ZipFile(broken, "w") as target:
+        for item in source.infolist():
+            data = source.read(item)
+            if item.filename == "modelDescription.xml":
+                data = data.replace(b'name="power"', b'name="power_w"')
+            target.writestr(item, data)
+    return broken
+
+
+def test_load_broken_crusher(load_fmu, tmp_path):
+    load_fmu(_without_power(tmp_path), interface="crusher")
+
+
+def test_run_plant_with_broken_crusher(run_scenario, tmp_path):
+    run_scenario(SCENARIO, until=10.0, overrides={{"crusher.fmu": str(_without_power(tmp_path))}})
+'''
+
+
+def test_a_broken_fmu_is_caught_at_load_naming_file_and_variable(pytester):
+    from pathlib import Path
+
+    scenario = Path(__file__).resolve().parent.parent / "examples" / "cosim_tests" / "plant.toml"
+    pytester.makepyfile(test_user=BROKEN_FMU_TEST.format(scenario=str(scenario)))
+    result = pytester.runpytest()
+    result.assert_outcomes(failed=2)
+    expected = ("*FmuInterfaceError: broken_crusher.fmu: variable 'power': must be an output "
+                "Float64 variable, a scalar (missing)")
+    result.stdout.fnmatch_lines(["*test_load_broken_crusher*", expected,
+                                 "*test_run_plant_with_broken_crusher*", expected])
