@@ -150,11 +150,14 @@ def account_ids(entered, held=(), left=(), *, entered_mass=None, held_mass=None,
 
 def assert_ids_accounted(entered, held=(), left=(), *, entered_mass=None, held_mass=None,
                          left_mass=None, split_allowed: bool = False, rtol: float = 1e-9,
-                         kind: str = "tracking id", where: str = "the exchange") -> IdAccount:
+                         kind: str = "tracking id", where: str = "the exchange",
+                         hint: str = "Follow one of these ids through the event store "
+                                     "(minetwin events history DB ID) to see where it went."
+                         ) -> IdAccount:
     """No id lost or duplicated: every id that entered is held or has left, once.
 
     See ``account_ids`` for the parameters. The message lists the offending
-    ids (first 10) per kind of fault.
+    ids (first 10) per kind of fault and ends with ``hint`` (where to look).
     """
     __tracebackhide__ = True  # pytest shows the message, not these lines
     account = account_ids(entered, held, left, entered_mass=entered_mass, held_mass=held_mass,
@@ -180,9 +183,7 @@ def assert_ids_accounted(entered, held=(), left=(), *, entered_mass=None, held_m
                         f"(applied twice?): {items}")
     entered_n = np.unique(np.asarray(entered, dtype=np.uint64)).size
     raise AssertionError(f"{where}: of {entered_n} {kind}s that entered, "
-                         + "; ".join(problems)
-                         + ". Follow one of these ids through the event store "
-                           "(minetwin events history DB ID) to see where it went.")
+                         + "; ".join(problems) + ". " + hint)
 
 
 # ------------------------------------------------------------------ reference band

@@ -118,7 +118,9 @@ class ExchangeResult:
             entered, held=list(self.held), left=list(self.left),
             entered_mass=[self.entered[k] for k in entered],
             held_mass=list(self.held.values()), left_mass=list(self.left.values()),
-            split_allowed=True, rtol=rtol, kind="tracking id", where=where)
+            split_allowed=True, rtol=rtol, kind="tracking id", where=where,
+            hint="Compare the client's outflow reports for these ids with the server "
+                 "ledger's outflow_log (ExchangeResult.ledger).")
 
     def fingerprint(self) -> str:
         """Everything a run's outcome is, without wall-clock figures, as canonical JSON
