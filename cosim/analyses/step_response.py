@@ -7,7 +7,8 @@ hardness 1 at both sources. From their time series:
 * crusher: mean power over four truck cycles before the truck reaches the
   harder ore and over four cycles starting 60 s after ("about 60 s later ...
   the crusher power draw has increased by 40 %, from 1.5 kW to 2.1 kW"), their
-  ratio, the mass-weighted zone hardness after the step (paper: about 1.4)
+  ratio, the delay until the power's 30 s average exceeds 1.25 x the
+  before-level, the mass-weighted zone hardness after the step (paper: about 1.4)
   and the dominant period of the power signal after the step from its
   autocorrelation (paper: 55 s, the truck cycle);
 * mill: the time after the discharge start (500 s) when the mill hardness
@@ -96,6 +97,10 @@ def analyse(step, reference, config: dict, hard_s: float, cycle_s: float) -> dic
     settled = _window(step, after_start, step.index[-1])
     period = dominant_period(settled.index.to_numpy(), settled["crusher_fmu.power"].to_numpy())
 
+    dt = float(np.median(np.diff(step.index.to_numpy())))
+    average = _moving_average(step["crusher_fmu.power"].to_numpy(),
+                              int(round(config["simulation"]["sensor_window_s"] / dt)))
+    risen_power = step.index[(step.index > hard_s) & (average > 1.25 * power_before)]
     schedule = config["stockpile"]["discharge"]
     discharge_s = next((t for t, rate in schedule if rate > 0), float("nan"))
     mill = _window(step, discharge_s, step.index[-1])
@@ -114,6 +119,8 @@ def analyse(step, reference, config: dict, hard_s: float, cycle_s: float) -> dic
         "crusher_hardness_mean_after": float((zone_mass * zone_hardness).sum() / zone_mass.sum())
         if zone_mass.sum() > 0 else float("nan"),
         "truck_cycle_period_s": period,
+        "crusher_power_rise_delay_s": float(risen_power[0] - hard_s) if len(risen_power)
+        else float("nan"),
         "discharge_start_s": float(discharge_s),
         "mill_hardness_rise_time_s": rise_s,
         "mill_hardness_mean_after": float(mill["mill.hardness"][harder].mean())

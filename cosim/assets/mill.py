@@ -99,12 +99,17 @@ class Mill(Asset):
             escaped_total = float(escaped.sum())
             self.plant.mass_out += escaped_total
             ground_out = new_mass < self.product_threshold
+            kept = ~ground_out
+            self._charge = new_mass[kept] @ new_f[kept]
             if ground_out.any() or t_end >= self._next_event - 1e-9:
                 escaped_total += self._report_product(slots, ground_out, t_end)
+            if ground_out.any():        # removal moved rows: look the slots up again
+                slots = store.slots(self._ids)
+        else:
+            slots = np.empty(0, dtype=np.int64)
+            self._charge = np.zeros(16)
         self._product_kg += escaped_total
         self._product_rate = escaped_total / dt
-        slots = store.slots(self._ids)
-        self._charge = store.mass[slots] @ store.f[slots] if slots.size else np.zeros(16)
         self._readings = self._sensors.sample(store, t_end, slots)
 
     def _report_product(self, slots, ground_out, t: float) -> float:
