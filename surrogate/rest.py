@@ -68,6 +68,9 @@ MAX_GRID = 200
 MAX_PARTICLES_PAGE = 50_000
 """Largest page of ``/particles``."""
 
+MAX_STRIDE = 1000
+"""Largest thinning step of ``/particles``."""
+
 MAX_HORIZON_S = 3600.0
 """Longest feed prediction [s]."""
 
@@ -345,8 +348,12 @@ def create_app(asset, lock=None) -> web.Application:
     async def particles(request):
         limit = _query_number(request, "limit", 5000, 1, MAX_PARTICLES_PAGE, integer=True)
         offset = _query_number(request, "offset", 0, 0, 2**31 - 1, integer=True)
-        table = read(asset.particle_table, limit, offset)
-        return web.json_response(to_json({"limit": limit, "offset": offset,
+        stride = _query_number(request, "stride", 1, 1, MAX_STRIDE, integer=True)
+        table = read(asset.particle_table, limit * stride, offset)
+        if stride > 1:  # thinned: every stride-th row of the page
+            table = {key: value[::stride] if isinstance(value, np.ndarray) else value
+                     for key, value in table.items()}
+        return web.json_response(to_json({"limit": limit, "offset": offset, "stride": stride,
                                           "time_s": read(lambda: asset.time), **table}))
 
     async def feed(request):
@@ -617,11 +624,12 @@ OPENAPI = {
                     "cells along y (default 20)"),
              _param("field", {"type": "string", "pattern": FIELD_PATTERN},
                     f"comma-separated subset of {', '.join(FIELD_NAMES)} (default all)")]),
-        "/particles": _get("a page of the particles held, ordered by id", {
+        "/particles": _get("a page of the particles held, optionally thinned", {
             "type": "object",
             "required": ["limit", "offset", "total", "id", "tracking_id", "x", "y", "grade",
                          "hardness", "residence_time", "origin"],
             "properties": {"limit": {"type": "integer"}, "offset": {"type": "integer"},
+                           "stride": {"type": "integer"},
                            "time_s": {"type": "number"},
                            "total": {"type": "integer", "minimum": 0},
                            "id": _INT_LIST, "tracking_id": _INT_LIST,
@@ -631,7 +639,10 @@ OPENAPI = {
             [_param("limit", {"type": "integer", "minimum": 1, "maximum": MAX_PARTICLES_PAGE},
                     "page size (default 5000)"),
              _param("offset", {"type": "integer", "minimum": 0, "maximum": 2**31 - 1},
-                    "first row (default 0)")]),
+                    "first row (default 0)"),
+             _param("stride", {"type": "integer", "minimum": 1, "maximum": MAX_STRIDE},
+                    "thinning: every stride-th row from offset, at most limit rows "
+                    "(default 1)")]),
         "/feed": _get("feed predicted for the next horizon seconds", {
             "type": "object",
             "required": ["horizon_s", "mass_kg", "grade", "hardness", "d80_m", "tracking_ids"],

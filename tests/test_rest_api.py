@@ -253,6 +253,16 @@ def test_particles_pages_cover_every_held_particle_once(served):
         assert (np.hypot(x, y) <= 10.0 + 1e-9).all() and (y >= -1e-9).all()
 
 
+def test_particles_thinned(served):
+    _, base, _ = served
+    everything = get(base, "/particles?limit=50000")[1]
+    status, thinned = get(base, "/particles?limit=20&offset=3&stride=7")
+    assert status == 200 and thinned["stride"] == 7
+    assert thinned["id"] == everything["id"][3::7][:20]
+    assert thinned["grade"] == everything["grade"][3::7][:20]
+    assert thinned["total"] == everything["total"]
+
+
 def test_velocity_field_points_to_the_outlet(served):
     """The funnel (ROM) and the schematic drain both move material towards
     the outlet at the origin: inward radial velocity in every filled cell."""
@@ -347,7 +357,8 @@ BAD_PARAMETERS = [
     ("/fields?field=grade,,mass", "field"),
     ("/particles?limit=0", "limit"), ("/particles?limit=-3", "limit"),
     ("/particles?limit=50001", "limit"), ("/particles?offset=-1", "offset"),
-    ("/particles?offset=1.5", "offset"),
+    ("/particles?offset=1.5", "offset"), ("/particles?stride=0", "stride"),
+    ("/particles?stride=1001", "stride"),
     ("/feed?horizon=0", "horizon"), ("/feed?horizon=-5", "horizon"),
     ("/feed?horizon=inf", "horizon"), ("/feed?horizon=1e9", "horizon"),
     ("/feed?horizon=soon", "horizon"),

@@ -7,7 +7,7 @@
 const params = new URLSearchParams(window.location.search);
 const POLL_MS = Math.max(200, Number(params.get("poll") || 1000));
 const FEED_HORIZON_S = 30;
-const PARTICLE_LIMIT = 20000;
+const PARTICLE_LIMIT = 6000;  // larger piles are thinned to about this many dots
 const HISTORY_KEEP = 20000;
 
 // Shared with tests and the curious: what the page shows right now.
@@ -40,7 +40,8 @@ async function fetchAll() {
   const since = state.history.length ? state.history[state.history.length - 1].time_s : -1e12;
   const [history, particles, fields, feed] = await Promise.all([
     getJSON("history?since=" + since),
-    getJSON("particles?limit=" + PARTICLE_LIMIT),
+    getJSON("particles?limit=" + PARTICLE_LIMIT + "&stride=" +
+            Math.max(1, Math.ceil(totals.particle_count / PARTICLE_LIMIT))),
     getJSON("fields?nx=36&ny=18&field=mass,velocity"),
     getJSON("feed?horizon=" + FEED_HORIZON_S),
   ]);
