@@ -15,8 +15,9 @@ the same fixed number of steps from that state:
   set to ours, 2 zeta sqrt(k_n / m_eff), at the mean m_eff; LAMMPS has no
   rolling resistance, ours does (extra work on our side).
 
-Prints one JSON object: particle-steps per second of each, the ratio
-ours / LAMMPS, and where our time goes (force kernel, list builds, the
+Prints one JSON object: particle-steps per second of each (per wall second
+and per CPU second: on a shared machine the CPU-time figure is steadier), the
+ratios ours / LAMMPS, and where our time goes (force kernel, list builds, the
 rest: integration, feeder, Python). Run: ``.venv/bin/python
 benchmarks/bench_dem.py`` (a few minutes the first time, for settling).
 """
@@ -65,9 +66,9 @@ def settled_pile(n: int, cache: Path, settle_time: float) -> Dem:
 def time_ours(dem: Dem, steps: int) -> dict:
     dem.step(5)  # compile / load the numba cache outside the timing
     builds0 = dem.list_builds
-    start = time.perf_counter()
+    start, cpu0 = time.perf_counter(), time.process_time()
     dem.step(steps)
-    wall = time.perf_counter() - start
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu0
     builds = dem.list_builds - builds0
     # where the time goes: the force kernel alone, and one list build, on this state
     force, torque = np.zeros((dem.n, 2)), np.zeros(dem.n)
@@ -87,8 +88,9 @@ def time_ours(dem: Dem, steps: int) -> dict:
     build_s = time.perf_counter() - t0
     contacts = int(_count_contacts(dem))
     return {
-        "wall_s": wall, "steps": steps, "particles": dem.n,
+        "wall_s": wall, "cpu_s": cpu, "steps": steps, "particles": dem.n,
         "particle_steps_per_s": dem.n * steps / wall,
+        "particle_steps_per_cpu_s": dem.n * steps / cpu,
         "list_builds": builds,
         "pairs_in_list_per_particle": dem.nbr.size / dem.n,
         "contacts_per_particle": contacts / dem.n,
@@ -185,11 +187,14 @@ def time_lammps(binary: str, dem: Dem, steps: int) -> dict:
                                    int(match.group(3)), int(match.group(4)))
     builds = re.search(r"Total # of neighbors = (\d+)", log)
     rebuilds = re.search(r"Neighbor list builds = (\d+)", log)
+    cpu_use = re.search(r"([0-9.]+)% CPU use", log)
+    cpu = loop * float(cpu_use.group(1)) / 100.0 if cpu_use else loop
     pair_share = re.search(r"Pair\s*\|[^|]*\|[^|]*\|[^|]*\|[^|]*\|\s*([0-9.]+)", log)
     neigh_share = re.search(r"Neigh\s*\|[^|]*\|[^|]*\|[^|]*\|[^|]*\|\s*([0-9.]+)", log)
     return {
         "binary": binary, "procs": procs, "steps": n_steps, "particles": atoms,
-        "wall_s": loop, "particle_steps_per_s": atoms * n_steps / loop,
+        "wall_s": loop, "cpu_s": cpu, "particle_steps_per_s": atoms * n_steps / loop,
+        "particle_steps_per_cpu_s": atoms * n_steps / cpu,
         "list_builds": int(rebuilds.group(1)) if rebuilds else None,
         "neighbors_per_particle": int(builds.group(1)) / atoms if builds else None,
         "time_share_percent": {"pair": float(pair_share.group(1)) if pair_share else None,
@@ -223,6 +228,9 @@ def main(argv=None) -> int:
         result["lammps"] = theirs
         result["ratio_ours_over_lammps"] = (ours["particle_steps_per_s"]
                                             / theirs["particle_steps_per_s"])
+        # on a shared machine the CPU-time ratio is the steadier figure
+        result["ratio_ours_over_lammps_cpu_time"] = (ours["particle_steps_per_cpu_s"]
+                                                     / theirs["particle_steps_per_cpu_s"])
     else:
         result["lammps"] = "not installed" if not args.no_lammps else "skipped"
     print(json.dumps(result, indent=2))

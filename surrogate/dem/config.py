@@ -97,8 +97,9 @@ class DemConfig:
     normal_stiffness : float
         Linear normal spring k_n [N/m] (4e7). Chosen as low as realistic:
         at the base of a 60 m pile the mean contact force is about
-        rho_b g H d ~ 1.2e5 N, so the overlap stays below ~1 % of the mean
-        diameter (0.34 m); the CLI reports the largest overlap.
+        rho_b g H d ~ 1.2e5 N, a mean overlap of ~1 % of the mean diameter
+        (0.34 m); in the settled 20,000-disk pile the median overlap is
+        0.08 % and the 99th percentile 1.2 % (README.md).
     tangential_stiffness_ratio : float
         k_t / k_n [-] (2/7, the ratio that gives equal normal and tangential
         oscillation periods for spheres).
