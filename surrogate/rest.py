@@ -62,6 +62,9 @@ FIELD_NAMES = ("mass", "grade", "hardness", "residence_time", "velocity")
 FIELD_PATTERN = "^({0})(,({0}))*$".format("|".join(FIELD_NAMES))
 """What the ``field`` parameter of ``/fields`` accepts."""
 
+MAX_HISTORY_ROWS = 100_000
+"""Largest number of rows ``/history`` returns (the latest ones)."""
+
 MAX_GRID = 200
 """Largest grid side (cells) of ``/fields``."""
 
@@ -330,7 +333,9 @@ def create_app(asset, lock=None) -> web.Application:
 
     async def history(request):
         since = _query_number(request, "since", -math.inf, -1e12, 1e12)
-        rows = read(asset.history, since)
+        limit = _query_number(request, "limit", MAX_HISTORY_ROWS, 1, MAX_HISTORY_ROWS,
+                              integer=True)
+        rows = read(asset.history, since)[-limit:]
         return web.json_response({"since": to_json(since), "rows": to_json(rows)})
 
     async def fields(request):
@@ -606,11 +611,13 @@ OPENAPI = {
             "properties": {"status": {"type": "string", "enum": ["ok"]},
                            "time_s": {"type": "number"}}}),
         "/totals": _get("current totals of the stockpile", _TOTALS),
-        "/history": _get("totals time series since a time", {
+        "/history": _get("totals time series since a time (the latest rows)", {
             "type": "object", "required": ["since", "rows"],
             "properties": {"since": _NUM, "rows": {"type": "array", "items": _TOTALS}}},
             [_param("since", {"type": "number", "minimum": -1e12, "maximum": 1e12},
-                    "rows recorded strictly after this time [s]; default all")]),
+                    "rows recorded strictly after this time [s]; default all"),
+             _param("limit", {"type": "integer", "minimum": 1, "maximum": MAX_HISTORY_ROWS},
+                    f"at most this many rows, the latest (default {MAX_HISTORY_ROWS})")]),
         "/fields": _get("spatial fields on a grid over the pile (arrays ny x nx)", {
             "type": "object", "required": ["nx", "ny", "time_s", "x_edges", "y_edges"],
             "properties": {"nx": {"type": "integer"}, "ny": {"type": "integer"},

@@ -193,6 +193,8 @@ def test_history_since(served):
     assert status == 200
     assert [row["time_s"] for row in later["rows"]] == times[2:]
     assert get(base, f"/history?since={times[-1]}")[1]["rows"] == []
+    latest = get(base, f"/history?since={times[0] - 1}&limit=2")[1]["rows"]
+    assert [row["time_s"] for row in latest] == times[-2:]
 
 
 def test_fields_conserve_mass_and_average_grade(served):
@@ -351,7 +353,8 @@ def test_rest_component_serves_the_mine_simulator_stockpile():
 
 BAD_PARAMETERS = [
     ("/history?since=abc", "since"), ("/history?since=nan", "since"),
-    ("/history?since=inf", "since"),
+    ("/history?since=inf", "since"), ("/history?limit=0", "limit"),
+    ("/history?limit=100001", "limit"),
     ("/fields?nx=0", "nx"), ("/fields?nx=201", "nx"), ("/fields?ny=x", "ny"),
     ("/fields?nx=2.5", "nx"), ("/fields?field=colour", "field"), ("/fields?field=", "field"),
     ("/fields?field=grade,,mass", "field"),

@@ -39,7 +39,7 @@ async function fetchAll() {
   }
   const since = state.history.length ? state.history[state.history.length - 1].time_s : -1e12;
   const [history, particles, fields, feed] = await Promise.all([
-    getJSON("history?since=" + since),
+    getJSON("history?limit=" + HISTORY_KEEP + "&since=" + since),
     getJSON("particles?limit=" + PARTICLE_LIMIT + "&stride=" +
             Math.max(1, Math.ceil(totals.particle_count / PARTICLE_LIMIT))),
     getJSON("fields?nx=36&ny=18&field=mass,velocity"),
