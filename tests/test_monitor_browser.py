@@ -18,6 +18,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -54,6 +55,11 @@ def _start(args, pattern, stream="stdout", timeout=30.0):
             break
         match = re.search(pattern, line)
         if match:
+            # keep reading both pipes so that a chatty process never blocks on a full pipe
+            proc.drains = [threading.Thread(target=pipe.read, daemon=True)
+                           for pipe in (proc.stdout, proc.stderr)]
+            for drain in proc.drains:
+                drain.start()
             return proc, match
     proc.kill()
     rest = proc.communicate(timeout=10)
@@ -61,6 +67,7 @@ def _start(args, pattern, stream="stdout", timeout=30.0):
 
 
 def _stop(proc) -> None:
+    """Stop (SIGTERM, then kill), let the pipe readers finish, close the pipes."""
     if proc.poll() is None:
         proc.send_signal(signal.SIGTERM)
         try:
@@ -68,6 +75,10 @@ def _stop(proc) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+    for drain in getattr(proc, "drains", ()):
+        drain.join(timeout=10)
+    for pipe in (proc.stdout, proc.stderr):
+        pipe.close()
 
 
 def _start_stockpile(port=0):
@@ -117,16 +128,14 @@ def processes():
     """Running stockpile and monitor; stops whatever is still running after the test."""
     _ensure_chromium()
     running = {}
-    stockpile, match = _start_stockpile()
-    running["stockpile"] = stockpile
-    stockpile_url = match.group(0)
-    monitor, match = _start_monitor(stockpile_url)
-    running["monitor"] = monitor
-    yield running, stockpile_url, match.group(0)
-    for proc in running.values():
-        _stop(proc)
-        for pipe in (proc.stdout, proc.stderr):
-            pipe.close()
+    try:
+        running["stockpile"], match = _start_stockpile()
+        stockpile_url = match.group(0)
+        running["monitor"], match = _start_monitor(stockpile_url)
+        yield running, stockpile_url, match.group(0)
+    finally:
+        for proc in running.values():
+            _stop(proc)
 
 
 def test_monitor_page_against_a_running_stockpile(processes, tmp_path):
@@ -252,8 +261,6 @@ def test_monitor_page_against_the_mine_simulator(tmp_path):
         for proc in (stockpile, monitor):
             if proc is not None:
                 _stop(proc)
-                proc.stdout.close()
-                proc.stderr.close()
     assert (tmp_path / "monitor_mine_simulator.png").read_bytes()[:4] == b"\x89PNG"
 
 
