@@ -38,7 +38,9 @@ def _ensure_chromium() -> None:
     if os.path.exists(CHROMIUM):
         return
     if shutil.which("apt-get") and os.geteuid() == 0:
-        subprocess.run(["apt-get", "install", "-y", "chromium"], capture_output=True, timeout=600)
+        for command in (["apt-get", "update"], ["apt-get", "install", "-y", "chromium"]):
+            subprocess.run(command, capture_output=True, timeout=600,
+                           env={**os.environ, "DEBIAN_FRONTEND": "noninteractive"})
     if not os.path.exists(CHROMIUM):
         pytest.skip(f"{CHROMIUM} missing and 'apt-get install -y chromium' could not install it "
                     "(needs root and Debian's package repositories)")
