@@ -12,6 +12,10 @@ floor : float
     Floor height [m].
 outlet_x : float
     Centre of the bottom outlet (feeder) on the floor [m].
+outlet_width : float
+    Width of the feeder opening [m] (default 0: a point outlet).
+feeder_zone_height : float
+    Height above the floor of the zone the feeder draws from [m] (default 1).
 inlet_x : float
     Horizontal position where incoming material falls onto the pile [m].
 areal_density : float
@@ -38,6 +42,8 @@ class Container:
     inlet_x: float
     areal_density: float
     repose_angle: float = 0.6
+    outlet_width: float = 0.0
+    feeder_zone_height: float = 1.0
 
     def __post_init__(self):
         if not self.x_max > self.x_min:
@@ -50,6 +56,9 @@ class Container:
         if not self.areal_density > 0:
             raise ValidationError("container.areal_density", "> 0 kg/m^2",
                                   f"got {self.areal_density}")
+        if not (self.outlet_width >= 0 and self.feeder_zone_height > 0):
+            raise ValidationError("container.outlet_width/feeder_zone_height", ">= 0 and > 0 m",
+                                  f"got {self.outlet_width}, {self.feeder_zone_height}")
         if not 0 < self.repose_angle < 1.5:
             raise ValidationError("container.repose_angle", "in (0, 1.5) rad",
                                   f"got {self.repose_angle}")

@@ -7,9 +7,9 @@ issue 10: discharge rate, inflow rate and pile state (fill level and shape,
 pointy and depleted) are varied; fields are sampled on the ROM grid.
 
 The training stockpile (``training_config``) is a small version of the
-paper's pile, so that a design runs in minutes on a laptop core: a 44 m
-floor, one inlet 14 m above the centre, one 3 m wide feeder in the floor
-below it, disks 0.3-0.5 m (38-177 kg), piles of 70-130 t (800-1500 disks,
+paper's pile, so that a design runs in minutes on a laptop core: a 52 m
+floor, one inlet 14 m above the centre, one 5 m wide feeder in the floor
+below it (narrower openings arch over and jam in this DEM), disks 0.3-0.5 m (38-177 kg), piles of 70-130 t (800-1500 disks,
 7-10 m tall). The normal stiffness is lowered to 8e6 N/m, which keeps
 overlaps below ~1 % of a diameter at the base of this pile (DemConfig's
 rule) and allows a larger stable step.
@@ -18,7 +18,9 @@ A scenario: from a filled pile (a checkpoint), every ``CONTROL_STEP`` [s]
 the inflow q_in * step [kg] of the current lot is emitted at the inlet, the
 feeder is set to q_out and the DEM advances; a snapshot per second gives the
 mass field M(t) and the displacement velocity field V(t -> t+1 s) on the
-grid (``surrogate.rom.grid``). Lots are ``LOT_MASS`` [kg] (about one
+grid (``surrogate.rom.grid``); the discharge-rate control signal of a
+sample is the mass the DEM feeder actually took in that second (an arch
+over the opening can starve the feeder below its setpoint). Lots are ``LOT_MASS`` [kg] (about one
 truckload, the tracking ids of the accuracy metric) with hardness
 alternating 1 and 2 (paper figure "pile_states") and grades drawn
 uniformly in [0.2, 0.8].
@@ -55,24 +57,56 @@ def training_config(**overrides):
     """The DEM configuration of the training stockpile (module docstring)."""
     from surrogate.dem import DemConfig
 
-    values = dict(floor_width=44.0, side_wall_height=1.0, inlets=[[0.0, 14.0]],
-                  inlet_width=1.0, outlets=[0.0], outlet_width=3.0, diameter_min=0.3,
+    values = dict(floor_width=52.0, side_wall_height=1.0, inlets=[[0.0, 14.0]],
+                  inlet_width=1.0, outlets=[0.0], outlet_width=5.0, diameter_min=0.3,
                   diameter_max=0.5, normal_stiffness=8.0e6)
     values.update(overrides)
     return DemConfig(**values)
 
 
-def container_of(cfg, areal_density: float) -> Container:
-    """The ROM's container for a DEM configuration (inlet 0, outlet 0)."""
+def container_of(cfg, areal_density: float, repose: float) -> Container:
+    """The ROM's container for a DEM configuration (inlet 0, outlet 0) with the
+    bulk density [kg/m^2] and angle of repose [rad] measured on its piles."""
     half = cfg.floor_width / 2.0
     return Container(x_min=-half, x_max=half, floor=0.0, outlet_x=float(cfg.outlets[0]),
-                     inlet_x=float(cfg.inlets[0][0]), areal_density=float(areal_density))
+                     inlet_x=float(cfg.inlets[0][0]), areal_density=float(areal_density),
+                     repose_angle=float(repose), outlet_width=float(cfg.outlet_width),
+                     feeder_zone_height=float(cfg.feeder_zone_height))
 
 
 def grid_of(cfg, cell_size: float = 1.0, height: float = 12.0) -> Grid:
     """ROM grid over the pile region: the floor width x ``height`` [m]."""
     half = cfg.floor_width / 2.0
     return Grid.covering(-half, half, 0.0, height, cell_size)
+
+
+BULK_AGE = 4.0
+"""Particles younger than this [s] are still falling or spreading (the surface
+layer); the bulk fields the ROM learns leave them out."""
+
+
+def bulk_only(snapshot: dict) -> dict:
+    """The snapshot without the particles of the surface layer (``BULK_AGE``)."""
+    keep = np.asarray(snapshot["residence_time"]) >= BULK_AGE
+    return {k: (v[keep] if np.ndim(v) and len(v) == keep.size else v)
+            for k, v in snapshot.items()}
+
+
+def repose_angle(snapshot: dict, width: float = 1.0) -> float:
+    """Angle of repose [rad] of a settled pile: least-squares slope of its
+    column heights against |x - x_top| between 15 % and 85 % of the height."""
+    x, y = np.asarray(snapshot["position"]).T
+    edges = np.arange(x.min(), x.max() + width, width)
+    index = np.digitize(x, edges)
+    top = np.full(edges.size + 1, np.nan)
+    np.fmax.at(top, index, y + np.asarray(snapshot["radius"]))
+    centres = np.append(edges, edges[-1] + width) - 0.5 * width
+    ok = np.isfinite(top)
+    peak = centres[ok][np.argmax(top[ok])]
+    height = np.nanmax(top)
+    flank = ok & (top > 0.15 * height) & (top < 0.85 * height)
+    slope = -np.polyfit(np.abs(centres[flank] - peak), top[flank], 1)[0]
+    return float(np.arctan(slope))
 
 
 def areal_density(snapshot: dict, grid: Grid) -> float:
@@ -160,15 +194,15 @@ def run_scenario(dem, feed: LotFeed, discharge_rate: float, inflow_rate: float,
     """Run the DEM under constant controls; return the samples and the outflow.
 
     Returns a dict: ``time`` (S,), ``mass`` (S, ny, nx) [kg], ``velocity``
-    (S, ny, nx, 2) [m/s], ``discharge_rate``, ``inflow_rate`` (S,) [kg/s],
+    (S, ny, nx, 2) [m/s], ``discharge_rate`` (what the feeder took that
+    second), ``setpoint``, ``inflow_rate`` (S,) [kg/s],
     ``wall_s`` (DEM wall time [s]), ``outflow`` (time, tracking_id, mass,
-    grade, hardness per discharged particle) and ``emitted`` (the same per
-    emitted particle, as given to the inlet: ids, tracking ids, masses).
+    grade, hardness per discharged particle).
     """
     start_time = dem.time
     dem.discharged()  # flush: only this run's outflow is returned
     snapshot = dem.snapshot()
-    times, masses, velocities = [], [], []
+    times, masses, velocities, taken, records = [], [], [], [], []
     wall = 0.0
     dem.set_discharge_rate(discharge_rate, outlet=0)
     steps = int(round(duration / CONTROL_STEP))
@@ -178,20 +212,22 @@ def run_scenario(dem, feed: LotFeed, discharge_rate: float, inflow_rate: float,
             emit_lots(dem, feed, inflow_rate * CONTROL_STEP)
         dem.advance(CONTROL_STEP)
         wall += time.perf_counter() - tic
+        records.append(dem.discharged())
+        taken.append(float(records[-1]["mass"].sum()) / CONTROL_STEP)
         after = dem.snapshot()
+        bulk = bulk_only(snapshot)
         times.append(snapshot["time"])
-        masses.append(mass_field(grid, snapshot["position"], snapshot["mass"]))
-        velocities.append(displacement_velocity_field(grid, snapshot, after))
+        masses.append(mass_field(grid, bulk["position"], bulk["mass"]))
+        velocities.append(displacement_velocity_field(grid, bulk, after))
         snapshot = after
         if progress and (k + 1) % 10 == 0:
             progress(f"t = {dem.time - start_time:.0f}/{duration:.0f} s, "
                      f"held {dem.held_mass() / 1e3:.1f} t, wall {wall:.0f} s")
-    out = dem.discharged()
-    outflow = {key: np.asarray(out[key])
+    outflow = {key: np.concatenate([np.asarray(r[key]) for r in records])
                for key in ("id", "tracking_id", "mass", "grade", "hardness", "time")}
     count = len(times)
     return {"time": np.array(times), "mass": np.array(masses), "velocity": np.array(velocities),
-            "discharge_rate": np.full(count, float(discharge_rate)),
+            "discharge_rate": np.array(taken), "setpoint": np.full(count, float(discharge_rate)),
             "inflow_rate": np.full(count, float(inflow_rate)), "wall_s": wall,
             "outflow": outflow}
 
@@ -224,10 +260,24 @@ def save_samples(path: Path, result: dict) -> None:
                         wall_s=np.array(result["wall_s"]))
 
 
+RATE_SMOOTHING = 5.0
+"""Window [s] of the moving average applied to the feeder's per-second taken
+mass (whole particles of ~100 kg make the raw per-second rate jumpy)."""
+
+
+def _smoothed(rate: np.ndarray) -> np.ndarray:
+    width = max(int(round(RATE_SMOOTHING / CONTROL_STEP)), 1)
+    padded = np.pad(rate, (width // 2, width - 1 - width // 2), mode="edge")
+    return np.convolve(padded, np.ones(width) / width, mode="valid")
+
+
 def load_samples(directory) -> dict:
-    """Concatenate every ``train/*.npz`` sample file under ``directory``."""
+    """Concatenate every ``train/*.npz`` sample file under ``directory``
+    (discharge rates smoothed over ``RATE_SMOOTHING`` seconds per run)."""
     files = sorted(Path(directory, "train").glob("*.npz"))
-    parts = [np.load(f) for f in files]
+    parts = [dict(np.load(f)) for f in files]
+    for part in parts:
+        part["discharge_rate"] = _smoothed(part["discharge_rate"])
     if not parts:
         from cosim.errors import ValidationError
 

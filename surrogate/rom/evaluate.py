@@ -57,15 +57,17 @@ def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
     grid = doe.grid_of(cfg)
     scenarios = doe.training_scenarios(quick)
     fills = sorted({s.fill for s in scenarios} | {doe.HELDOUT.fill})
-    density = []
+    density, repose = [], []
     for k, fill in enumerate(fills):
         path = directory / "piles" / f"fill_{fill:.0f}.npz"
         if not path.exists():
             _say(progress, f"DEM: building a {fill / 1e3:.0f} t pile")
             dem, _ = doe.build_pile(cfg, fill, seed + k)
             dem.save_checkpoint(path)
-        density.append(doe.areal_density(Dem.load_checkpoint(path).snapshot(), grid))
-    container = doe.container_of(cfg, float(np.median(density)))
+        pile = Dem.load_checkpoint(path).snapshot()
+        density.append(doe.areal_density(pile, grid))
+        repose.append(doe.repose_angle(pile))
+    container = doe.container_of(cfg, float(np.median(density)), float(np.median(repose)))
     for s in scenarios:
         path = directory / "train" / f"{s.name}.npz"
         if path.exists():
@@ -155,9 +157,10 @@ def _run_heldout_dem(heldout: Path, name: str, grid: Grid, perturbation: float,
         dem.advance(doe.CONTROL_STEP)
         wall += time.perf_counter() - tic
         after = dem.snapshot()
+        bulk = doe.bulk_only(snapshot)
         fields["time"].append(snapshot["time"])
-        fields["mass"].append(mass_field(grid, snapshot["position"], snapshot["mass"]))
-        fields["velocity"].append(displacement_velocity_field(grid, snapshot, after))
+        fields["mass"].append(mass_field(grid, bulk["position"], bulk["mass"]))
+        fields["velocity"].append(displacement_velocity_field(grid, bulk, after))
         fields["grade"].append(mean_field(grid, snapshot["position"], snapshot["mass"],
                                           snapshot["grade"]))
         fields["hardness"].append(mean_field(grid, snapshot["position"], snapshot["mass"],
@@ -202,11 +205,12 @@ def train(directory, out=None, n_mass_modes: int = 12, n_velocity_modes: int = 1
 
 # ------------------------------------------------------------ evaluation
 def run_storage(name: str, heldout: Path, model: RomModel | None = None, seed: int = 0,
-                options: dict | None = None) -> tuple[dict, float, object]:
+                options: dict | None = None, on_step=None) -> tuple[dict, float, object]:
     """Drive storage model ``name`` through the held-out scenario.
 
     Returns ``(outflow, wall_s, storage)``; the wall time covers the storage
     model's calls only (receive, step), not the bookkeeping of this harness.
+    ``on_step(k, time, storage)`` is called after every control step.
     """
     from surrogate.dem import Dem
 
@@ -252,6 +256,8 @@ def run_storage(name: str, heldout: Path, model: RomModel | None = None, seed: i
         outflow["grade"].append(store.grade[slots].copy())
         outflow["hardness"].append(store.hardness[slots].copy())
         store.remove_slots(slots)
+        if on_step is not None:
+            on_step(k, t + doe.CONTROL_STEP, storage)
     return {k: np.concatenate(v) for k, v in outflow.items()}, wall, storage
 
 

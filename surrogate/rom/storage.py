@@ -13,14 +13,19 @@ One step of ``dt`` [s] is split into substeps of at most ``max_step`` [s]:
    the mass field M of the held particles is sampled on the model grid and
    the velocity field is predicted, v = ROM(M, q_out, q_in), with q_in the
    inflow rate [kg/s] averaged over the last ``inflow_window`` seconds;
-2. particles are advected by v (``surrogate.rom.advect``);
+2. particles are advected by v (``surrogate.rom.advect``), then the bulk
+   is packed again (``surrogate.rom.surface.settle``: angle-of-repose
+   avalanches, columns re-stacked at the bulk density; the regressed field
+   is not divergence free, so advection alone would compact the pile);
 3. the outlet: the feeder's mass credit grows by q_out * h and whole
-   particles leave, nearest to the outlet first, while their mass fits in
-   the credit (the credit rule of ``cosim.storage.StorageModel``), so the
-   discharged mass follows q_out * t to within one particle. Nearness is the
-   distance to the outlet point with horizontal offsets weighted by
-   ``FUNNEL_ASPECT`` (the column above the opening drains first, material
-   beside it on the floor is the dead zone).
+   particles leave while their mass fits in the credit (the credit rule of
+   ``cosim.storage.StorageModel``), so the discharged mass follows
+   q_out * t to within one particle. As the DEM's belt feeder, it takes the
+   lowest particles in its zone (``outlet_x +- outlet_width / 2``, up to
+   ``feeder_zone_height`` above the floor) first; should the zone hold too
+   little, the nearest particles to the outlet follow, with horizontal
+   offsets weighted by ``FUNNEL_ASPECT`` (the column above the opening
+   drains first, material beside it on the floor is the dead zone).
 
 Incoming particles (``receive``) are placed by the surface layer
 (``surrogate.rom.surface``: fall from the inlet, angle-of-repose spreading)
@@ -39,7 +44,8 @@ model : RomModel or str or Path, optional
 update_interval : float
     Seconds between velocity predictions (default 1.0 s).
 max_step : float
-    Largest advection substep [s] (default 0.25 s).
+    Largest outlet/packing substep [s] (default 1.0 s; advection inside a
+    substep is further split so no particle moves more than half a cell).
 inflow_window : float
     Averaging window of the inflow-rate control signal [s] (default 30 s).
 rng : numpy.random.Generator, optional
@@ -59,7 +65,7 @@ from cosim.storage import StorageModel, check_discharge_rate
 from surrogate.rom.advect import advect, interpolate
 from surrogate.rom.grid import mass_field, mean_field
 from surrogate.rom.model import RomModel
-from surrogate.rom.surface import column_width, deposit, surface_heights
+from surrogate.rom.surface import column_width, deposit, settle, surface_heights
 
 FUNNEL_ASPECT = 3.0
 """Weight of horizontal offsets in the outlet's order of leaving [-]."""
@@ -71,7 +77,7 @@ class RomStorage(StorageModel):
     name = "rom"
     has_geometry = True
 
-    def __init__(self, model=None, *, update_interval: float = 1.0, max_step: float = 0.25,
+    def __init__(self, model=None, *, update_interval: float = 1.0, max_step: float = 1.0,
                  inflow_window: float = 30.0, rng: np.random.Generator | None = None):
         super().__init__()
         self.update_interval = float(check_finite_range(
@@ -89,6 +95,7 @@ class RomStorage(StorageModel):
         self._field = None
         self._field_time = -np.inf
         self._field_rate = None
+        self._width = None
         self.out_of_range: list[str] = []
         if model is not None:
             self.fit(model)
@@ -123,7 +130,7 @@ class RomStorage(StorageModel):
         if ids.size == 0:
             return
         mass = self.particles.mass[self.particles.slots(ids)].copy()
-        width = column_width(self.container, float(np.median(mass)))
+        width = self._column_width(mass)
         heights = surface_heights(self.container, width, self._pos, self._mass)
         self._append(ids, mass, deposit(self.container, width, heights, mass, self.rng))
         self._receipts.append((float(t), float(mass.sum())))
@@ -137,7 +144,15 @@ class RomStorage(StorageModel):
             raise ValidationError("position", f"{ids.size} rows of (x, y)",
                                   f"got {position.shape[0]}")
         check_finite_range("position", position, unit="m")
-        self._append(ids, self.particles.mass[self.particles.slots(ids)].copy(), position)
+        mass = self.particles.mass[self.particles.slots(ids)].copy()
+        self._column_width(mass)
+        self._append(ids, mass, position)
+
+    def _column_width(self, mass) -> float:
+        """Surface/packing column width, fixed by the first particles (about one particle)."""
+        if self._width is None and len(mass):
+            self._width = column_width(self.container, float(np.median(mass)))
+        return self._width
 
     def _append(self, ids, mass, position) -> None:
         self._ids = np.concatenate((self._ids, ids))
@@ -168,19 +183,30 @@ class RomStorage(StorageModel):
                                        warning.lineno)
         return field
 
-    def _advect(self, t: float, h: float, rate: float, position: np.ndarray) -> None:
+    def _refresh_field(self, t: float, rate: float) -> np.ndarray:
+        """The velocity field, predicted again every ``update_interval`` or on a new rate."""
         if (self._field is None or t - self._field_time >= self.update_interval - 1e-9
                 or rate != self._field_rate):
             self._field = self.velocity_field(t, rate)
             self._field_time, self._field_rate = t, rate
+        return self._field
+
+    def _move(self, field, h: float, position: np.ndarray, mass: np.ndarray) -> None:
+        """Advect ``position`` in place by ``field`` over ``h`` [s], then pack the bulk."""
         grid, c = self.model.grid, self.container
-        substeps = max(1, int(np.ceil(h * np.abs(self._field).max() / (0.5 * min(grid.dx, grid.dy)))))
-        advect(position, self._field, grid.x_min, grid.y_min, grid.dx, grid.dy, h, substeps,
+        # substeps keep each move below half a cell (CFL-like)
+        substeps = max(1, int(np.ceil(h * np.abs(field).max() / (0.5 * min(grid.dx, grid.dy)))))
+        advect(position, field, grid.x_min, grid.y_min, grid.dx, grid.dy, h, substeps,
                c.x_min, c.x_max, c.floor)
+        settle(c, self._width, position, mass)
 
     def _nearest_first(self, position, count_hint: int) -> np.ndarray:
         c = self.container
-        d2 = (FUNNEL_ASPECT * (position[:, 0] - c.outlet_x)) ** 2 + (position[:, 1] - c.floor) ** 2
+        height = position[:, 1] - c.floor
+        offset = np.abs(position[:, 0] - c.outlet_x)
+        in_zone = (offset <= 0.5 * c.outlet_width) & (height <= c.feeder_zone_height)
+        # zone particles (key = height < zone height) before all others (key >= 1e6)
+        d2 = np.where(in_zone, height, 1e6 + (FUNNEL_ASPECT * offset) ** 2 + height ** 2)
         if count_hint < d2.size:
             part = np.argpartition(d2, count_hint)[: count_hint + 1]
             return part[np.argsort(d2[part], kind="stable")]
@@ -205,7 +231,7 @@ class RomStorage(StorageModel):
             if self._ids.size == 0:
                 self._credit_kg = 0.0
                 break
-            self._advect(t + k * h, h, rate, self._pos)
+            self._move(self._refresh_field(t + k * h, rate), h, self._pos, self._mass)
             self._credit_kg += rate * h
             taken, self._credit_kg = self._take(self._pos, self._mass, self._credit_kg)
             if taken.size:
@@ -251,12 +277,10 @@ class RomStorage(StorageModel):
         substeps = max(1, int(np.ceil(horizon / self.max_step)))
         h = horizon / substeps
         field = self._field if self._field is not None else self.velocity_field(0.0, rate)
-        grid, c = self.model.grid, self.container
         for _ in range(substeps):
             if index.size == 0:
                 break
-            advect(position, field, grid.x_min, grid.y_min, grid.dx, grid.dy, h, 2,
-                   c.x_min, c.x_max, c.floor)
+            self._move(field, h, position, mass)
             credit += rate * h
             taken, credit = self._take(position, mass, credit)
             if taken.size:

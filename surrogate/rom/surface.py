@@ -83,3 +83,83 @@ def deposit(container: Container, width: float, heights: np.ndarray, mass,
     _deposit(heights, container.x_min, width, inlet_column, mass, container.areal_density,
              np.tan(container.repose_angle) * width, draws[0], draws[1], draws[2], out)
     return out
+
+
+@numba.njit(cache=True)
+def _settle(position, mass, x_min, width, columns, floor, areal_density, max_drop, sweeps):
+    n = position.shape[0]
+    column = np.empty(n, np.int64)
+    key = np.empty(n)
+    count = np.zeros(columns, np.int64)
+    for p in range(n):
+        c = int((position[p, 0] - x_min) / width)
+        c = min(max(c, 0), columns - 1)
+        column[p] = c
+        count[c] += 1
+        key[p] = c * 1.0e6 + (position[p, 1] - floor)
+    order = np.argsort(key)
+    capacity = count.max() + sweeps + 1
+    stack = np.empty((columns, capacity), np.int64)
+    filled = np.zeros(columns, np.int64)
+    height = np.full(columns, floor)
+    for k in range(n):
+        p = order[k]
+        c = column[p]
+        stack[c, filled[c]] = p
+        filled[c] += 1
+        height[c] += mass[p] / (areal_density * width)
+    # angle-of-repose relaxation: the top particle of a too-steep column slides over
+    for _ in range(sweeps):
+        moved = False
+        for c in range(columns):
+            if filled[c] == 0:
+                continue
+            left = height[c] - height[c - 1] if c > 0 else -1.0
+            right = height[c] - height[c + 1] if c < columns - 1 else -1.0
+            if max(left, right) <= max_drop:
+                continue
+            d = c - 1 if left >= right else c + 1
+            if filled[d] >= capacity:
+                continue
+            filled[c] -= 1
+            p = stack[c, filled[c]]
+            stack[d, filled[d]] = p
+            filled[d] += 1
+            rise = mass[p] / (areal_density * width)
+            height[c] -= rise
+            height[d] += rise
+            position[p, 0] += (d - c) * width
+            moved = True
+        if not moved:
+            break
+    # density projection: each column is a packed stack in its particles' height order
+    for c in range(columns):
+        top = floor
+        for k in range(filled[c]):
+            p = stack[c, k]
+            rise = mass[p] / (areal_density * width)
+            position[p, 1] = top + 0.5 * rise
+            top += rise
+
+
+def settle(container: Container, width: float, position: np.ndarray, mass,
+           sweeps: int = 20) -> None:
+    """Pack the bulk in place: angle-of-repose avalanching, then packed columns.
+
+    The advected field is a regression, not divergence free, so advection
+    alone would compact or dilute the bulk. After each advection step every
+    column of width w is re-stacked at the bulk density in the height order
+    the advection gave its particles (y_n = floor + (sum of the masses below
+    + m_n / 2) / (rho_A w)): a column loses height exactly as the feeder
+    takes mass from it, which is how the funnel sinks. Before that, up to
+    ``sweeps`` times, the top particle of every column steeper than the angle
+    of repose against a neighbour slides onto that neighbour (surface
+    avalanches into the crater above the funnel).
+    """
+    if len(position) == 0:
+        return
+    columns = max(int(round((container.x_max - container.x_min) / width)), 1)
+    width = (container.x_max - container.x_min) / columns
+    _settle(position, np.ascontiguousarray(mass, dtype=np.float64), container.x_min, width,
+            columns, container.floor, container.areal_density,
+            np.tan(container.repose_angle) * width, int(sweeps))
