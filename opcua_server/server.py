@@ -37,7 +37,8 @@ from pathlib import Path
 import numpy as np
 from asyncua import Server, ua
 from asyncua.common.utils import ServiceError
-from asyncua.crypto.permission_rules import UserRole
+from asyncua.crypto.permission_rules import PermissionRuleset, UserRole
+from asyncua.crypto.security_policies import SecurityPolicyNone
 from asyncua.crypto.truststore import TrustStore
 from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 from asyncua.server.address_space import AttributeService
@@ -115,6 +116,35 @@ class PlantAttributeService(AttributeService):
             results.append(await self._aspace.write_attribute_value(
                 item.NodeId, ua.AttributeIds.Value, stored))
         return results
+
+
+class RefuseNoneChannel:
+    """Policy factory for None secure channels when no None endpoint is offered.
+
+    asyncua 2.1.0 accepts OpenSecureChannel with SecurityPolicy#None even when
+    no None endpoint is offered (the connection starts with a None policy and
+    ``select_policy`` keeps it when nothing matches), and such a channel skips
+    the permission ruleset entirely (measured: a viewer could read over it).
+    Discovery needs the None channel (clients call GetEndpoints on it first),
+    so this factory, first in the server's policy list, gives None channels a
+    ruleset that refuses every request but discovery.
+    """
+
+    def matches(self, uri, mode=None) -> bool:
+        return uri == SecurityPolicyNone.URI
+
+    def create(self, peer_certificate):
+        return SecurityPolicyNone(peer_certificate, permission_ruleset=DiscoveryOnly())
+
+
+class DiscoveryOnly(PermissionRuleset):
+    """On a None channel only discovery (GetEndpoints, FindServers) is served:
+    asyncua exempts those and session creation from the ruleset; every other
+    request, whoever the user, is refused with BadUserAccessDenied."""
+
+    def check_validity(self, user, action_type_id, body) -> bool:
+        log.warning("refused a request on an unencrypted (None) secure channel")
+        return False
 
 
 class TrustListValidator:
@@ -215,6 +245,8 @@ class PlantServer:
             print(f"{banner}\nWARNING: --insecure: the None security endpoint is ON; messages are "
                   f"neither signed nor encrypted.\nLocal development only.\n{banner}", file=sys.stderr)
         server.set_security_policy(policies, permission_ruleset=PlantPermissions(self._methods_by_role))
+        if not self.insecure:
+            server._policies.insert(0, RefuseNoneChannel())
         await server.start()
         await self.publish()
 

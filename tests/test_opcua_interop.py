@@ -67,7 +67,9 @@ def test_node_opcua_browses_reads_subscribes_and_writes_by_role(node_opcua, tmp_
     finally:
         server.stop()
     assert run.returncode == 0, run.stderr[-3000:]
-    result = json.loads(run.stdout.strip().splitlines()[-1])
+    lines = [line for line in run.stdout.splitlines() if line.startswith("RESULT ")]
+    assert lines, run.stdout[-3000:]
+    result = json.loads(lines[-1].removeprefix("RESULT "))
     assert {"CV101", "SP201", "CV301", "SimulationTime", "AdvanceTime"} <= set(result["browse"])
     assert len(result["bin_tracking_ids"]) == len(result["bin_masses"]) == 20
     assert any(m > 0 for m in result["bin_masses"])

@@ -84,7 +84,7 @@ async function main() {
   await viewer.close();
   await operator.close();
   await client.disconnect();
-  console.log(JSON.stringify(result));
+  console.log("RESULT " + JSON.stringify(result));
 }
 
 main().catch((err) => { console.error(err); process.exit(1); });
