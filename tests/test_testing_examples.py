@@ -36,7 +36,7 @@ def runs(tmp_path_factory):
 def test_example_folder_passes_as_designed(runs):
     code, out = runs["as designed"]
     assert code == 0, out[-4000:]
-    assert "3 passed" in out
+    assert "5 passed" in out
 
 
 def test_swapping_in_the_cone_crusher_is_caught_with_a_table(runs):

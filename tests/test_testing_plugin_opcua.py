@@ -4,6 +4,7 @@ stockpile client, SignAndEncrypt with test credentials. Each server start costs 
 run by tests/test_testing_examples.py.)"""
 
 import json
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
@@ -48,15 +49,18 @@ def test_a_lossy_exchange_is_caught_with_the_lost_ids(mock_800xa, stockpile_clie
             in message) or f"partly lost (mass missing): {tracking_id}: {mass:.6g} kg" in message
 
 
+def _lockstep_run(folder):
+    server = MockPlantServer(folder).start()
+    try:
+        return LockstepStockpile(server, "mixing", seed=7, period=2.0).run(UNTIL_S).fingerprint()
+    finally:
+        server.stop()
+
+
 def test_the_same_lockstep_run_gives_identical_results_twice(tmp_path):
-    outcomes = []
-    for run in ("first", "second"):
-        server = MockPlantServer(tmp_path / run).start()
-        try:
-            result = LockstepStockpile(server, "mixing", seed=7, period=2.0).run(UNTIL_S)
-        finally:
-            server.stop()
-        outcomes.append(result.fingerprint())
+    # two independent server processes and clients, side by side (each its own event loop)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        outcomes = list(pool.map(_lockstep_run, [tmp_path / "first", tmp_path / "second"]))
     first = json.loads(outcomes[0])
     assert first["left"] and first["held"] and len(first["history"]) >= UNTIL_S / 0.5
     assert outcomes[0] == outcomes[1]

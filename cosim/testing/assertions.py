@@ -270,10 +270,12 @@ def measure_step_response(time, values, *, step_time: float, before: tuple[float
                           smoothing: float = 0.0, crossing: float = 0.5) -> StepResponse:
     """Gain, ratio and delay of a step response.
 
-    ``smoothing`` [s] is the width of a centred moving average applied
+    ``smoothing`` [s] is the window of a trailing moving average applied
     before the crossing is looked for (e.g. the truck cycle of 55 s, so the
-    oscillation of the feed does not count as a response; the paper's
-    figures use a 30 s moving average).
+    oscillation of the feed does not count as a response). Trailing, as the
+    virtual sensors' moving average (paper eq. "observation"): a response
+    arriving in discrete lumps (truck loads) is seen when the first lump
+    arrives, a gradual one with the averaging lag of up to ``smoothing``.
     """
     t = np.asarray(time, dtype=np.float64)
     y = np.asarray(values, dtype=np.float64)
@@ -288,7 +290,7 @@ def measure_step_response(time, values, *, step_time: float, before: tuple[float
         dt = float(np.median(np.diff(t)))
         width = max(int(round(smoothing / dt)), 1)
         kernel = np.ones(width) / width
-        padded = np.pad(y, (width // 2, width - 1 - width // 2), mode="edge")
+        padded = np.pad(y, (width - 1, 0), mode="edge")
         smooth = np.convolve(padded, kernel, mode="valid")
     threshold = level_before + crossing * (level_after - level_before)
     rising = level_after >= level_before
