@@ -53,7 +53,8 @@ def prepare_state(root: Path) -> dict:
             "password_files": files, "client_cert": pki["cert"], "client_key": pki["key"]}
 
 
-def _minetwin() -> list[str]:
+def minetwin_command() -> list[str]:
+    """The `minetwin` command line of this interpreter (works without the console script)."""
     return [sys.executable, "-m", "cosim.cli"]
 
 
@@ -106,7 +107,7 @@ class ServerProcess(ManagedProcess):
         self.ledger = workdir / "ledger.json"
         ready = workdir / "server.ready"
         ready.unlink(missing_ok=True)
-        args = _minetwin() + ["serve-800xa", "--port", str(self.port), "--host", "127.0.0.1",
+        args = minetwin_command() + ["serve-800xa", "--port", str(self.port), "--host", "127.0.0.1",
                               "--state-dir", str(state["server_state"]), "--speed", str(speed),
                               "--ledger", str(self.ledger), "--ready-file", str(ready)]
         args += ["--lockstep"] if lockstep else []
@@ -126,7 +127,7 @@ class StockpileProcess(ManagedProcess):
         self.summary = workdir / f"{name}.summary.json"
         self.checkpoint = workdir / f"{name}.checkpoint"
         self.rest_port_file = workdir / f"{name}.rest_port"
-        args = _minetwin() + ["stockpile", "--server", url, "--model", model,
+        args = minetwin_command() + ["stockpile", "--server", url, "--model", model,
                               "--state-dir", str(state["client_state"]),
                               "--password-file", str(state["password_files"]["surrogate"]),
                               "--checkpoint", str(self.checkpoint), "--summary", str(self.summary)]

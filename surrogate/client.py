@@ -108,6 +108,7 @@ class StockpileClient:
         self.acked = -1
         self.step_times_ms: list[float] = []
         self.max_lag_s = 0.0
+        self.lags_s: list[float] = []
         self.reconnects = 0
         self._stop = asyncio.Event()
         self.nodes: dict = {}
@@ -309,7 +310,9 @@ class StockpileClient:
         await self._send()
         await self._report_values()
         server_now = await n["simulation_time"].read_value()
-        self.max_lag_s = max(self.max_lag_s, float(server_now) - self.asset.time)
+        lag = float(server_now) - self.asset.time
+        self.lags_s.append(lag)
+        self.max_lag_s = max(self.max_lag_s, lag)
 
     async def _session(self) -> None:
         client = await self._connect()
@@ -401,6 +404,8 @@ class StockpileClient:
             "step_time_p99_ms": float(np.percentile(times, 99)),
             "step_time_mean_ms": float(times.mean()),
             "cycles": len(self.step_times_ms), "max_lag_s": self.max_lag_s,
+            "lag_p99_s": float(np.percentile(self.lags_s, 99)) if self.lags_s else 0.0,
+            "first_cycle_lag_s": self.lags_s[0] if self.lags_s else 0.0,
             "reconnects": self.reconnects, "history": self.asset.history(),
         }
         if self.o.summary:
