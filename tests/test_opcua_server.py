@@ -205,15 +205,26 @@ def test_operator_writes_setpoint_in_range_only(plant):
     assert report_code == ua.StatusCodes.BadUserAccessDenied
 
 
-def test_surrogate_may_not_write_setpoint(plant):
+def test_surrogate_writes_its_reports_in_range_but_not_the_setpoint(plant):
     @session(plant, "surrogate")
-    async def code(client, n):
-        try:
-            await n["setpoint"].write_value(ua.Variant(100.0, ua.VariantType.Double))
-        except ua.UaStatusCodeError as exc:
-            return exc.code
+    async def codes(client, n):
+        idx = await client.get_namespace_index(NS)
+        grade = client.get_node(ua.NodeId("Plant.SP201.AverageGrade", idx))
+        out = []
+        for node, value in ((n["setpoint"], 100.0), (n["held"], -1.0), (n["held"], math.nan),
+                            (grade, 1.5)):
+            try:
+                await node.write_value(ua.Variant(value, ua.VariantType.Double))
+                out.append(None)
+            except ua.UaStatusCodeError as exc:
+                out.append(exc.code)
+        await n["held"].write_value(ua.Variant(1234.5, ua.VariantType.Double))
+        await grade.write_value(ua.Variant(0.02, ua.VariantType.Double))
+        return out, await n["held"].read_value(), await grade.read_value()
 
-    assert code == ua.StatusCodes.BadUserAccessDenied
+    refused, held, grade = codes
+    assert refused == [ua.StatusCodes.BadUserAccessDenied] + [ua.StatusCodes.BadOutOfRange] * 3
+    assert held == 1234.5 and grade == 0.02
 
 
 async def _raw_call(client, n, *args):

@@ -95,7 +95,8 @@ def run(args) -> int:
         client = StockpileClient(ClientOptions(
             server_url=args.server, username=args.user, password=password, certificate=cert,
             private_key=key, server_certificate=args.server_cert, insecure=args.insecure,
-            model=args.model, storage_options=storage_options, seed=args.seed, particle_mass_kg=args.particle_mass, dt_s=args.dt,
+            model=args.model, storage_options=storage_options, seed=args.seed,
+            particle_mass_kg=args.particle_mass, dt_s=args.dt,
             cycle_s=args.cycle, lockstep=args.lockstep, period_s=args.period,
             duration_s=args.duration, checkpoint=args.checkpoint, summary=args.summary,
             node_map=args.node_map, rest_port=args.rest_port,
