@@ -1,6 +1,4 @@
-"""The minetwin pytest plugin as a user sees it: test files run by pytester in a subprocess."""
-
-import pytest
+"""The minetwin pytest plugin as a user sees it: user test files run by pytester."""
 
 pytest_plugins = ["pytester"]
 

@@ -59,8 +59,8 @@ class Tolerance:
     def __post_init__(self):
         for name in ("atol", "rtol", "time_shift"):
             value = getattr(self, name)
-            if not (isinstance(value, (int, float, np.floating)) and np.isfinite(value)
-                    and value >= 0):
+            if (isinstance(value, bool) or not isinstance(value, (int, float, np.floating))
+                    or not np.isfinite(value) or value < 0):
                 raise ValidationError(name, "a finite number >= 0", f"got {value!r}")
 
     def describe(self) -> str:

@@ -116,8 +116,7 @@ class ReferenceResult:
 
         columns = {}
         for name in signals:
-            time, values = signal_from(timeseries, name)
-            columns[name] = values
+            _, columns[name] = signal_from(timeseries, name)
         return cls(time=np.asarray(timeseries.index, dtype=np.float64), signals=columns)
 
     def write(self, path) -> Path:
