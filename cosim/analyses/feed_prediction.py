@@ -191,7 +191,7 @@ HORIZON_S = 30.0
 """Prediction horizon [s] (paper: 30 s)."""
 OUTFLOW_WINDOW_S = 2.0
 """Moving-average window of the realised outflow [s] (paper: 2 s)."""
-QUICK_UNTIL_S = 550.0
+QUICK_UNTIL_S = 450.0
 FULL_UNTIL_S = 1500.0
 ROM_MODEL_ENV = "MINETWIN_ROM_MODEL"
 """Environment variable naming a trained ROM file (``minetwin rom train``); when set and
