@@ -15,6 +15,8 @@ HERE = Path(__file__).parent
 SCENARIO = HERE / "plant.toml"
 REFERENCE = HERE / "plant_reference.csv"   # minetwin reference record plant.toml --out ...
 
+pytestmark = pytest.mark.cosim              # select with -m cosim (marker of the minetwin plugin)
+
 
 def test_crusher_fmu_offers_what_the_crusher_asset_needs(load_fmu, crusher_fmu):
     crusher = load_fmu(crusher_fmu, interface="crusher")
@@ -43,7 +45,6 @@ def test_crusher_power_steps_up_when_the_truck_reaches_harder_ore(plant_run):
                          name="crusher_fmu.power")
 
 
-@pytest.mark.cosim
 def test_stockpile_exchange_over_opcua_in_lockstep(mock_800xa, stockpile_client):
     stockpile = stockpile_client(model="mixing", seed=3, period=2.0)
     result = stockpile.run(until=60.0)
