@@ -22,9 +22,6 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.slow
-
-
 def reproduce(name: str, out: Path) -> tuple[dict, subprocess.CompletedProcess]:
     done = subprocess.run([sys.executable, "-m", "cosim.cli", "reproduce", name, "--quick",
                            "--quiet", "--out", str(out)], capture_output=True, text=True,
@@ -33,6 +30,7 @@ def reproduce(name: str, out: Path) -> tuple[dict, subprocess.CompletedProcess]:
     return json.loads((out / "summary.json").read_text()), done
 
 
+@pytest.mark.slow
 def test_reproduce_mwd(tmp_path):
     summary, _ = reproduce("mwd", tmp_path)
     assert summary["location_error_m"] == 12.5
@@ -45,6 +43,7 @@ def test_reproduce_mwd(tmp_path):
     assert (tmp_path / "run" / "mwd.parquet").is_file()
 
 
+@pytest.mark.slow
 def test_reproduce_grindability(tmp_path):
     summary, _ = reproduce("grindability", tmp_path)
     assert len(summary["blocks_with_enough_mass"]) == 10
@@ -55,6 +54,7 @@ def test_reproduce_grindability(tmp_path):
         assert (tmp_path / name).stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_reproduce_sensitivity(tmp_path):
     summary, _ = reproduce("sensitivity", tmp_path)
     error = summary["beta_error"]
@@ -66,6 +66,7 @@ def test_reproduce_sensitivity(tmp_path):
     assert (tmp_path / "sensitivity.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_reproduce_feed_prediction(tmp_path):
     summary, _ = reproduce("feed-prediction", tmp_path)
     grade, hardness = summary["feed_grade_prediction_mae"], summary["feed_hardness_prediction_mae"]
@@ -75,3 +76,14 @@ def test_reproduce_feed_prediction(tmp_path):
     assert grade["mixing"] > 5 * grade["fifo"]
     for name in summary["figures"]:
         assert (tmp_path / name).stat().st_size > 10_000
+
+
+def test_reproduce_refuses_a_file_as_output_folder(tmp_path):
+    target = tmp_path / "a_file"
+    target.write_text("keep me")
+    done = subprocess.run([sys.executable, "-m", "cosim.cli", "reproduce", "grindability",
+                           "--quick", "--quiet", "--out", str(target)], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 2
+    assert "--out" in done.stderr and "folder" in done.stderr
+    assert target.read_text() == "keep me"

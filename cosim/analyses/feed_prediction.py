@@ -302,9 +302,9 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
     """One run per storage model with the prediction probe; (summary, failed checks)."""
     import json
 
-    from cosim.analyses.profile_run import run_profile, scenario_config
+    from cosim.analyses.profile_run import output_folder, run_profile, scenario_config
 
-    out = Path(out_dir)
+    out = output_folder(out_dir)
     until = QUICK_UNTIL_S if quick else FULL_UNTIL_S
     config = scenario_config(quick=quick)
     models, skipped = storage_models()

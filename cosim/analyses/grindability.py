@@ -408,9 +408,9 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
     """Run the quadratic-profile scenario and backtrack the grindability; (summary, failed)."""
     import json
 
-    from cosim.analyses.profile_run import run_profile, scenario_config
+    from cosim.analyses.profile_run import output_folder, run_profile, scenario_config
 
-    out = Path(out_dir)
+    out = output_folder(out_dir)
     until = QUICK_UNTIL_S if quick else FULL_UNTIL_S
     run = run_profile(out / "run", until=until, config=scenario_config(quick=quick), seed=seed,
                       progress=progress)

@@ -368,10 +368,10 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
     """Run the quadratic-profile scenario and identify beta; (summary, failed checks)."""
     import json
 
-    from cosim.analyses.profile_run import (MWD_BETA, MWD_LOCATION_ERROR_M, run_profile,
-                                            scenario_config)
+    from cosim.analyses.profile_run import (MWD_BETA, MWD_LOCATION_ERROR_M, output_folder,
+                                            run_profile, scenario_config)
 
-    out = Path(out_dir)
+    out = output_folder(out_dir)
     error = MWD_LOCATION_ERROR_M if location_error is None else float(location_error)
     until = QUICK_UNTIL_S if quick else FULL_UNTIL_S
     run = run_profile(out / "run", until=until, config=scenario_config(quick=quick),

@@ -57,6 +57,18 @@ class ProfileRun:
         return float(self.config["sources"]["left"]["hardness"].get("start", 0.0))
 
 
+def output_folder(out_dir) -> Path:
+    """``out_dir`` created as a folder, or a ValidationError naming ``--out``."""
+    from cosim.errors import ValidationError
+
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ValidationError("--out", "a folder (created if missing)",
+                              f"{str(out)!r} is a file")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
 def scenario_config(*, quick: bool, scenario=SCENARIO) -> dict:
     """The validated scenario, with the quick variant's narrower left face."""
     from cosim.scenario import load
@@ -82,8 +94,7 @@ def run_profile(out_dir, *, until: float, config: dict, location_error: float =
     from cosim.analyses.mwd import MwdSurvey
     from cosim.scenario import build, summarize
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder(out_dir)
     events_path = out / "events.sqlite"
     for suffix in ("", "-wal", "-shm"):
         Path(str(events_path) + suffix).unlink(missing_ok=True)
