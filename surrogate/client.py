@@ -306,7 +306,8 @@ class StockpileClient:
             await self._sync_pending()
         self.asset.set_discharge_rate(float(setpoint))
         self.advance_to(float(server_time))
-        self._checkpoint()
+        if self.state.outbox or self.state.last_applied != self.acked:
+            self._checkpoint()  # only what will be sent or acknowledged needs to be durable
         await self._send()
         await self._report_values()
         server_now = await n["simulation_time"].read_value()
