@@ -65,3 +65,11 @@ def test_bad_input_exits_2_naming_the_field(recorded, tmp_path, capsys):
     bare.write_text(PLANT.read_text().split("[reference]")[0])
     assert main(["reference", "record", str(bare), "--out", str(tmp_path / "x.csv")]) == 2
     assert "reference: must be a [reference] table naming the signals" in capsys.readouterr().err
+
+
+def test_a_run_that_fails_exits_1_with_the_simulator_message(recorded, capsys):
+    scenario, reference = recorded
+    assert main(["reference", "compare", str(scenario), str(reference), "--set",
+                 "sources.left.length_m=3"]) == 1       # the left ore body runs out
+    err = capsys.readouterr().err
+    assert "minetwin reference compare: the run of" in err and "ore body exhausted" in err

@@ -67,20 +67,28 @@ def _parse_overrides(items: list[str]) -> dict:
     return overrides
 
 
+class RunFailed(Exception):
+    """The scenario run itself failed (exit code 1)."""
+
+
 def _run(args, until: float):
     import tempfile
 
+    from cosim.master import CosimulationError
     from cosim.testing.scenario import run_scenario
 
     overrides = _parse_overrides(args.overrides)
-    if args.run_dir is not None:
-        return run_scenario(args.scenario, until=until, overrides=overrides, seed=args.seed,
-                            out=args.run_dir, progress=True)
-    with tempfile.TemporaryDirectory(prefix="minetwin-reference-") as tmp:
-        run = run_scenario(args.scenario, until=until, overrides=overrides, seed=args.seed,
-                           out=Path(tmp), progress=True)
-        run.close()
-        return run
+    try:
+        if args.run_dir is not None:
+            return run_scenario(args.scenario, until=until, overrides=overrides,
+                                seed=args.seed, out=args.run_dir, progress=True)
+        with tempfile.TemporaryDirectory(prefix="minetwin-reference-") as tmp:
+            run = run_scenario(args.scenario, until=until, overrides=overrides,
+                               seed=args.seed, out=Path(tmp), progress=True)
+            run.close()
+            return run
+    except CosimulationError as exc:
+        raise RunFailed(f"the run of {args.scenario} failed: {exc}") from exc
 
 
 def run_record(args) -> int:
@@ -92,7 +100,11 @@ def run_record(args) -> int:
     if until is None:
         raise ValidationError("--until", "given, or reference.until in the scenario",
                               f"{args.scenario} has no reference.until")
-    run = _run(args, until)
+    try:
+        run = _run(args, until)
+    except RunFailed as exc:
+        print(f"minetwin reference record: {exc}", file=sys.stderr)
+        return 1
     reference = ReferenceResult.from_timeseries(run.timeseries, spec.signals)
     path = reference.write(args.out)
     print(f"recorded {len(spec.signals)} signal(s) x {reference.time.size} samples "
@@ -106,7 +118,11 @@ def run_compare(args) -> int:
     spec = ReferenceSpec.from_scenario(args.scenario)
     reference = ReferenceResult.read(args.reference)
     until = args.until if args.until is not None else float(reference.time[-1])
-    run = _run(args, until)
+    try:
+        run = _run(args, until)
+    except RunFailed as exc:
+        print(f"minetwin reference compare: {exc}", file=sys.stderr)
+        return 1
     tolerances = {name: spec.tolerance(name) for name in reference.signals}
     report = compare(run.timeseries, reference, tolerances=tolerances)
     print(f"scenario {args.scenario} vs reference {args.reference}")
