@@ -369,6 +369,12 @@ def plot(data: dict, out) -> list:
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
     ax.plot(signals["time"], signals["bwi_kwh_t"], lw=0.8, color="k",
             label="BWI measured in the mill (30 s averages)")
+    first = result["times"][0] if len(result["times"]) else signals["time"].iloc[0]
+    ax.axvspan(signals["time"].iloc[0], first, color="0.92", label="mill start-up (not used)")
+    steady = signals.loc[signals["time"] >= first, "bwi_kwh_t"].dropna()
+    if len(steady):
+        lo, hi = np.percentile(steady, [0.5, 99.5])
+        ax.set_ylim(lo - 0.2 * (hi - lo + 1e-12), hi + 0.2 * (hi - lo + 1e-12))
     ax.set_ylabel("BWI [kWh/t]")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
