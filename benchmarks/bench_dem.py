@@ -46,9 +46,13 @@ from surrogate.dem.builders import packed_pile, settle  # noqa: E402
 
 
 def settled_pile(n: int, cache: Path, settle_time: float) -> Dem:
-    """Load the cached settled pile, or build, settle and cache it."""
+    """Load the cached settled pile (if built with today's defaults), or build,
+    settle and cache it."""
     if cache.is_file():
-        return Dem.load_checkpoint(cache)
+        dem = Dem.load_checkpoint(cache)
+        if dem.cfg == DemConfig() and dem.n == n:
+            return dem
+        print("cached pile has other parameters; rebuilding", file=sys.stderr)
     start = time.perf_counter()
     dem = packed_pile(DemConfig(), n, seed=0)
 
@@ -206,7 +210,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--particles", type=int, default=20_000)
     parser.add_argument("--steps", type=int, default=2000)
-    parser.add_argument("--settle-time", type=float, default=3.0,
+    parser.add_argument("--settle-time", type=float, default=6.0,
                         help="longest settling of the pile before timing [s]")
     parser.add_argument("--cache", type=Path,
                         help="settled pile checkpoint (default: /tmp/minetwin_bench_dem_N.npz)")

@@ -113,6 +113,11 @@ def test_discharge_follows_setpoint_and_conserves_mass_and_ids(settled_pile, tmp
     out = dem.discharged()
     assert out["mass"].sum() / duration == pytest.approx(rate, rel=0.05)
     assert dem.held_mass() > 0.5 * mass_in  # still "full"
+    # funnel flow: the column above the outlet moves, the flanks rest
+    speed = np.hypot(dem.vel[:, 0], dem.vel[:, 1])
+    x = np.abs(dem.pos[:, 0] - dem.cfg.outlets[0])
+    width = dem.cfg.outlet_width
+    assert speed[x < width / 2].mean() > 10 * speed[x > width].mean()
     left = np.concatenate((first["id"], out["id"]))
     assert len(set(left.tolist())) == left.size
     assert set(left.tolist()) | set(dem.id.tolist()) == ids_in
@@ -154,9 +159,10 @@ def test_energy_decays_at_derived_step_and_blows_up_far_above_the_limit():
     assert stable[-1] < stable[0]
     assert (np.diff(stable) <= 1e-9 * abs(stable[0])).all()  # never gains energy
     # 10 x stable_dt = t_c / 1.5 exceeds symplectic Euler's limit (2 / pi) t_c for
-    # one linear contact: the energy must explode, by orders of magnitude
+    # one linear contact: the energy explodes until the disks fly apart; it must
+    # exceed the pile's whole initial energy (mostly potential) tenfold
     unstable, _ = _pile_energy_history(10.0, 500, 2)
-    assert not np.isfinite(unstable).all() or unstable.max() > 100 * abs(stable[0])
+    assert not np.isfinite(unstable).all() or unstable.max() > 10 * abs(stable[0])
 
 
 def test_step_above_the_limit_is_refused_with_the_limit_in_the_message():

@@ -165,7 +165,7 @@ def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_t
     return start, nbr, ht, hr
 
 
-@njit(cache=True)
+@njit(inline="always", **HOT)
 def _closest_on_segment(px, py, ax, ay, bx, by):
     ex = bx - ax
     ey = by - ay

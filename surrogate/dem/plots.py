@@ -33,7 +33,8 @@ def pile_pictures(snapshot: dict, out_dir, title: str = "") -> list[Path]:
         fig, ax = plt.subplots(figsize=(12, 5))
         if pos.shape[0]:
             disks = EllipseCollection(diameter, diameter, 0.0, units="x", offsets=pos,
-                                      offset_transform=ax.transData, cmap=cmap)
+                                      offset_transform=ax.transData, cmap=cmap,
+                                      linewidths=0)
             disks.set_array(np.asarray(values, dtype=float))
             ax.add_collection(disks)
             fig.colorbar(disks, ax=ax, label=label, shrink=0.8)

@@ -168,8 +168,9 @@ class Dem:
                                       f"got shape {lot.shape}")
             masses = emitter.split_lot(self.cfg, float(lot), self.rng)
         else:
-            masses = np.broadcast_to(np.asarray(mass_kg, dtype=np.float64),
-                                     np.asarray(ids).ravel().shape)
+            masses = np.atleast_1d(np.asarray(mass_kg, dtype=np.float64)).ravel()
+            if masses.size == 1:
+                masses = np.full(np.asarray(ids).size, masses[0])
         rows = self._validated(masses, grade, hardness, f16, tracking_id, ids)
         radius = self.cfg.diameter_of_mass(rows["mass"]) / 2.0
         pos = emitter.inlet_positions(self.cfg, int(inlet), radius, self.pos, self.radius)
@@ -184,7 +185,12 @@ class Dem:
         positions = check_finite_range("positions", positions, unit="m")
         if positions.ndim != 2 or positions.shape[1] != 2:
             raise ValidationError("positions", "an (N, 2) array [m]", f"got {positions.shape}")
-        masses = np.broadcast_to(np.asarray(mass_kg, dtype=np.float64), (positions.shape[0],))
+        masses = np.atleast_1d(np.asarray(mass_kg, dtype=np.float64)).ravel()
+        if masses.size == 1:
+            masses = np.full(positions.shape[0], masses[0])
+        if masses.size != positions.shape[0]:
+            raise ValidationError("mass_kg", f"a scalar or {positions.shape[0]} masses",
+                                  f"got {masses.size}")
         rows = self._validated(masses, grade, hardness, f16, tracking_id, ids)
         return self._append(rows, positions, np.zeros_like(positions))
 
@@ -197,7 +203,7 @@ class Dem:
         else:
             new_ids = np.asarray(ids, dtype=np.uint64).ravel()
             if new_ids.size != count:
-                raise ValidationError("ids", f"{count} ids, one per particle", f"got {new_ids.size}")
+                raise ValidationError("ids", f"one id per mass ({count})", f"got {new_ids.size}")
             if np.unique(new_ids).size != count or np.isin(new_ids, self.id).any():
                 raise ValidationError("ids", "ids not already in the DEM and not repeated")
         try:
@@ -300,9 +306,10 @@ class Dem:
                 return
             if self._dirty:
                 self._rebuild()
+            force, torque = self._buffers()
             done, self.time, n_removed, moved = kernels.run_steps(
                 remaining, self.dt, self.time, self.pos, self.vel, self.omega,
-                self._force_buffer(), self._torque_buffer(), self.radius, self.body_mass,
+                force, torque, self.radius, self.body_mass,
                 self.inv_mass, self.inv_inertia, self.start, self.nbr, self.ht, self.hr,
                 self.wall_start, self.wall, self.wall_ht, self.wall_hr, self.walls, self.params,
                 self.ref_pos, 0.5 * self.cfg.skin, self.candidates, self._zone_lo,
@@ -322,14 +329,12 @@ class Dem:
             raise ValidationError("seconds", "finite and >= 0 s", f"got {seconds!r}")
         self.step(int(math.ceil(seconds / self.dt - 1e-9)))
 
-    def _force_buffer(self):
+    def _buffers(self):
+        """Force (N, 2) and torque (N,) scratch arrays sized to the disks held."""
         if getattr(self, "_force", None) is None or self._force.shape[0] != self.n:
             self._force = np.zeros((self.n, 2))
             self._torque = np.zeros(self.n)
-        return self._force
-
-    def _torque_buffer(self):
-        return self._torque
+        return self._force, self._torque
 
     def _remove(self, rows: np.ndarray) -> None:
         """Take the feeder-removed ``rows`` out, recording them as discharged."""
