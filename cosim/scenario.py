@@ -29,7 +29,8 @@ Tables and keys (defaults in brackets):
     of [time_s, rate_kg_s], [[0, 0]]), initial_mass_kg [0]: ore mined and
     crushed before t = 0 (see ``fill_stockpile``)
 ``[mill]`` position_m, fmu ["mill"], speed_rad_s [1.2],
-    product_threshold_kg [0.01], product_event_interval_s [10], parameters
+    product_threshold_kg [0.01], product_event_interval_s [60],
+    update_interval_s [0: every step], parameters
 
 A value outside its range, a missing required key or an unknown key is a
 ``ValidationError`` naming the dotted key (e.g. ``sources.left.grade``).
@@ -314,7 +315,7 @@ def validate(raw: dict) -> dict:
         unit="kg")
     mill = _table(raw, "mill", "")
     _no_unknown(mill, ("position_m", "fmu", "speed_rad_s", "product_threshold_kg",
-                       "product_event_interval_s", "parameters"), "mill")
+                       "product_event_interval_s", "update_interval_s", "parameters"), "mill")
     cfg["mill"] = {
         "position_m": _vector(mill, "position_m", "mill"),
         "fmu": _string(mill, "fmu", "mill", "mill"),
@@ -322,8 +323,10 @@ def validate(raw: dict) -> dict:
                                unit="rad/s"),
         "product_threshold_kg": _number(mill, "product_threshold_kg", "mill", 0.01, low=0.0,
                                         low_open=True, high=1e3, unit="kg"),
-        "product_event_interval_s": _number(mill, "product_event_interval_s", "mill", 10.0,
+        "product_event_interval_s": _number(mill, "product_event_interval_s", "mill", 60.0,
                                             low=0.0, low_open=True, high=1e5, unit="s"),
+        "update_interval_s": _number(mill, "update_interval_s", "mill", 0.0, low=0.0,
+                                     high=60.0, unit="s"),
         "parameters": _parameters(mill, "mill"),
     }
     return cfg
@@ -446,7 +449,8 @@ def build(config: dict, *, seed: int | None = None, storage_model: str | None = 
     mcfg = cfg["mill"]
     mill = Mill("mill", plant, location=mcfg["position_m"],
                 product_threshold=mcfg["product_threshold_kg"],
-                product_event_interval=mcfg["product_event_interval_s"], sensor_window=window,
+                product_event_interval=mcfg["product_event_interval_s"],
+                update_interval=mcfg["update_interval_s"], sensor_window=window,
                 sensor_interval=sample)
     pcfg, c2 = cfg["stockpile"], cfg["conveyors"]["stockpile_to_mill"]
     outlet = pcfg["outlet_m"]
