@@ -8,10 +8,10 @@ is 0.3962, 0.3950, 0.3941 for seeds 1, 2, 3 (0.3951 +- 0.0009), and over 3
 re-drawn location errors on one run 0.3957 +- 0.0006 (``reproduce
 sensitivity``). The error is a bias of about -0.005 (the uniform error
 averages the concave profile down, so the MWD reads softer than the ore), so
-the brief's 0.01 leaves about 5 standard deviations. Without location error the fit is exact to 1e-7 (the crusher FMU
-implements the torque model the fit assumes), well inside 0.005. The block
-grindability correlation is -0.99 on the quick run against the required
--0.8.
+the brief's 0.01 leaves about 5 standard deviations. Without location error
+the fit is exact to 1e-7 (the crusher FMU implements the torque model the fit
+assumes), well inside 0.005. The block grindability correlation is -0.98 on
+the quick run against the required -0.8.
 """
 
 import json
