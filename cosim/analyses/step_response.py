@@ -136,7 +136,11 @@ def analyse(step, reference, config: dict, hard_s: float, cycle_s: float) -> dic
 
 
 def checks(summary: dict) -> list[str]:
-    """The mechanism the paper shows; a list of what does not hold (empty: all hold)."""
+    """The mechanism the paper shows; a list of what does not hold (empty: all hold).
+
+    A figure that could not be computed (None or NaN) fails its check.
+    """
+    summary = {key: float("nan") if value is None else value for key, value in summary.items()}
     failed = []
     if not 1.25 <= summary["crusher_power_ratio"] <= 1.55:
         failed.append(f"crusher_power_ratio {summary['crusher_power_ratio']:.3f} "
@@ -257,5 +261,7 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
          step_sim.config["simulation"]["sensor_window_s"])
     failed = checks(summary)
     summary["checks_failed"] = failed
+    summary = {key: None if isinstance(value, float) and not np.isfinite(value) else value
+               for key, value in summary.items()}       # strict JSON: no NaN
     (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
     return summary, failed
