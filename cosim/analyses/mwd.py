@@ -271,6 +271,13 @@ BETA_TOLERANCE = 0.01
 """|beta_fit - 0.4| allowed with the paper's 12.5 m location error."""
 
 
+def run_coefficients(config: dict) -> np.ndarray:
+    """k_cr of a scenario's crusher FMU parameters (gap_width [m], k_oversize, k_undersize)."""
+    params = config.get("crusher", {}).get("parameters", {})
+    return crushing_coefficients(params.get("gap_width", CRUSHER_GAP),
+                                 params.get("k_oversize", 1.0), params.get("k_undersize", 0.1))
+
+
 def analyse(run, betas_shown=(0.3, 0.5)) -> tuple[dict, dict]:
     """Fit and prediction on a ``profile_run.ProfileRun``; (summary, plot data)."""
     from cosim.analyses.profile_run import MWD_BETA
@@ -280,7 +287,8 @@ def analyse(run, betas_shown=(0.3, 0.5)) -> tuple[dict, dict]:
     torque = run.timeseries["crusher_fmu.torque"].to_numpy()
     stays = residence_intervals(run.particles, "crusher_zone")
     signal = run.survey["mwd"]
-    fit = fit_mwd_exponent(times, torque, stays, signal)
+    k_cr = run_coefficients(run.config)
+    fit = fit_mwd_exponent(times, torque, stays, signal, k_cr=k_cr)
     frame = zone_hardness(stays, signal, times, [fit.beta, 0.42])
     occupied = frame["hardness_true"].notna()
     err = (frame.loc[occupied, f"hardness_beta_{fit.beta:g}"]
@@ -294,7 +302,7 @@ def analyse(run, betas_shown=(0.3, 0.5)) -> tuple[dict, dict]:
         "crusher_zone_particles": int(len(stays)),
         "sampling_s": float(times[occupied.to_numpy()][-1] - times[occupied.to_numpy()][0]),
     }
-    models = {b: expected_torque(stays, mwd_of(stays, signal), b, times)
+    models = {b: expected_torque(stays, mwd_of(stays, signal), b, times, k_cr)
               for b in sorted({*betas_shown, round(fit.beta, 3)})}
     return summary, {"times": times, "torque": torque, "models": models, "zone": frame,
                      "fit": fit}

@@ -48,7 +48,8 @@ def _check_sweep(dxs, seeds) -> tuple[np.ndarray, list[int]]:
 
 
 def mwd_sensitivity(times, torque, stays: pd.DataFrame, origins: dict, *, dxs, seeds,
-                    beta_true: float = 0.4, fit_scale: bool = False) -> pd.DataFrame:
+                    beta_true: float = 0.4, fit_scale: bool = False,
+                    k_cr=None) -> pd.DataFrame:
     """beta_fit against the location error dx.
 
     Parameters
@@ -65,6 +66,8 @@ def mwd_sensitivity(times, torque, stays: pd.DataFrame, origins: dict, *, dxs, s
         The sweep of location errors [m] and the seeds for each.
     beta_true : float
         Exponent of the true relation s = h**beta_true.
+    fit_scale, k_cr :
+        As in ``mwd.fit_mwd_exponent``.
 
     Returns a DataFrame with ``dx``, ``seed``, ``beta_fit`` and ``beta_error``.
     """
@@ -77,7 +80,8 @@ def mwd_sensitivity(times, torque, stays: pd.DataFrame, origins: dict, *, dxs, s
                        for x, profile in origins.values()]
             index = np.concatenate([x.index.to_numpy() for x, _ in origins.values()])
             survey = pd.Series(np.concatenate(signals), index=index)
-            fit = mwd.fit_mwd_exponent(times, torque, stays, survey, fit_scale=fit_scale)
+            fit = mwd.fit_mwd_exponent(times, torque, stays, survey, fit_scale=fit_scale,
+                                       k_cr=k_cr)
             rows.append({"dx": float(dx), "seed": seed, "beta_fit": fit.beta,
                          "beta_error": abs(fit.beta - beta_true)})
     return pd.DataFrame(rows)
@@ -146,7 +150,8 @@ def analyse(run, *, dxs, seeds, window: float = 30.0) -> tuple[dict, pd.DataFram
     origins = {name: (survey.loc[survey["source"] == name, "x"], run.profiles[name])
                for name in run.profiles}
     mwd_sweep = mwd_sensitivity(run.times, run.timeseries["crusher_fmu.torque"].to_numpy(),
-                                stays, origins, dxs=dxs, seeds=seeds, beta_true=MWD_BETA)
+                                stays, origins, dxs=dxs, seeds=seeds, beta_true=MWD_BETA,
+                                k_cr=mwd.run_coefficients(run.config))
     signals, feed, product = grindability.mill_inputs(run, window)
     _, mass, hardness = grindability.left_blocks(
         run.particles, first_cell=grindability.profile_first_cell(run))
