@@ -14,7 +14,6 @@ import pandas as pd
 import pytest
 
 from cosim.analyses import grindability, sensitivity
-from cosim.analyses.tracking import F_COLUMNS
 from cosim.blockmodel import ConstantHardness, QuadraticHardness
 from cosim.errors import ValidationError
 from cosim.events import EventStore
@@ -172,4 +171,3 @@ def test_sensitivity_degrades_with_location_error():
         sensitivity.grindability_sensitivity(
             signals, feed, product, x, start=0.0, block_length=10.0, n_blocks=10,
             block_mass=mass, block_hardness=hard, dxs=[-1.0], seeds=[1])
-    assert F_COLUMNS[0] in feed.columns

@@ -9,4 +9,8 @@ apply to any run, not only the simulator's:
 ``grindability``    Bond work index in the mill and its backtracking to ore blocks
 ``sensitivity``     how the above degrade with errors in the recorded origins
 ``tracking``        residence intervals and occupancy sums shared by all of them
+``profile_run``     the quadratic-hardness simulator run the reproductions analyse
+
+Each analysis module also exposes ``DESCRIPTION`` and ``reproduce(out_dir, *,
+quick, progress)`` for ``minetwin reproduce NAME`` (cosim/commands/reproduce.py).
 """
