@@ -202,6 +202,7 @@ def plot(mwd_sweep: pd.DataFrame, grind_sweep: pd.DataFrame, out) -> list:
 def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int | None = None):
     """One quadratic-profile run, then both sweeps; (summary, failed checks)."""
     import json
+    import sys
 
     from cosim.analyses.profile_run import output_folder, run_profile, scenario_config
 
@@ -210,6 +211,9 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
     run = run_profile(out / "run", until=until, config=scenario_config(quick=quick), seed=seed,
                       progress=progress)
     dxs, seeds = (QUICK_DXS, QUICK_SEEDS) if quick else (FULL_DXS, FULL_SEEDS)
+    if progress:
+        print(f"sensitivity: {len(dxs)} location errors x {len(seeds)} seeds "
+              "(beta refit and block reconciliation each)", file=sys.stderr, flush=True)
     summary, mwd_sweep, grind_sweep = analyse(run, dxs=dxs, seeds=seeds)
     mwd_sweep.to_csv(out / "mwd_sweep.csv", index=False)
     grind_sweep.to_csv(out / "grindability_sweep.csv", index=False)
