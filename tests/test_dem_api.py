@@ -160,3 +160,12 @@ def test_cli_pile_then_discharge_writes_summary_and_pictures(tmp_path, capsys):
     assert main(["dem", "discharge", "--from", str(pile), "--rate", "5000", "--duration", "2",
                  "--out", str(out)]) == 2
     assert "discharge_rate" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("angle", [30.0, 38.0])
+def test_angle_of_repose_estimator_reads_a_laid_out_triangle(angle):
+    from surrogate.dem.analysis import angle_of_repose
+    from surrogate.dem.builders import packed_pile
+
+    dem = packed_pile(DemConfig(floor_width=80.0), 1500, seed=0, angle_deg=angle)
+    assert angle_of_repose(dem.pos, dem.radius) == pytest.approx(angle, abs=1.5)
