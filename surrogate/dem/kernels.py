@@ -12,10 +12,10 @@ Data layout (structure of arrays, N disks, row i):
 
 Pair list (half Verlet list in CSR form): the neighbours j > i of disk i
 within ``r_i + r_j + skin`` are ``nbr[start[i]:start[i+1]]`` in increasing j;
-``hist_t[k]`` is the tangential spring elongation [m] and ``hist_r[k]`` the
+``ht[k]`` is the tangential spring elongation [m] and ``hr[k]`` the
 rolling spring angle [rad] of pair k (zero when not in contact).
 Wall list: the same for disk-segment pairs (``wall_start``, ``wall``,
-``wall_hist_t``, ``wall_hist_r``), segments as rows ``(ax, ay, bx, by)``.
+``wall_ht``, ``wall_hr``), segments as rows ``(ax, ay, bx, by)``.
 
 Contact law (pair i, j; n the unit vector from j to i, t = (-n_y, n_x)):
 
@@ -33,8 +33,8 @@ Contact law (pair i, j; n the unit vector from j to i, t = (-n_y, n_x)):
   ``R_eff = r_i r_j / (r_i + r_j)``, ``c_r = 2 zeta sqrt(k_r I_eff)``,
   ``I_eff = I_i I_j / (I_i + I_j)``, capped at ``mu_r R_eff F_n+`` (then
   ``theta = -M_r / k_r``) (Ai et al. 2011, Powder Technol. 206:269, model C);
-* force on i ``F_n n + F_t t``, torque on i ``-r_i F_t + M_r``; the
-  opposite force and torque ``-r_j F_t - M_r`` on j.
+* force on i ``F_n n + F_t t``, torque on i ``-r_i F_t + M_r``; on j the
+  opposite force and the torque ``-r_j F_t - M_r``.
 
 Walls are the same law with ``m_eff = m_i``, ``R_eff = r_i`` and a static
 wall. Integration: symplectic (semi-implicit) Euler,
