@@ -57,6 +57,9 @@ def test_mass_balance_holds_at_every_recorded_time(small_run):
     store = simulation.plant.particles
     per_owner = sum(store.total_mass(k) for k in range(len(simulation.plant.owner_names)))
     assert per_owner == pytest.approx(store.total_mass(), rel=1e-12)
+    pile = simulation.assets["stockpile"]
+    assert series["stockpile.mass_kg"].iloc[-1] == pytest.approx(
+        store.total_mass(pile.owner), rel=1e-9, abs=1e-6)
 
 
 def test_every_particle_id_is_accounted_for(small_run):

@@ -90,6 +90,12 @@ class Source(Asset):
         self.face = 0.0
         """Local coordinate of the loading face [m]; advances as mass is taken."""
         self.mass_taken = 0.0
+        self._update_outputs()
+
+    def _update_outputs(self) -> None:
+        # the signals change only when a load is taken: computed then, not every step
+        self._outputs = {"face_m": self.face, "hardness_at_face": float(self.hardness(self.face)),
+                         "mass_taken_kg": self.mass_taken}
 
     @property
     def mass_per_metre(self) -> float:
@@ -121,6 +127,7 @@ class Source(Asset):
         local[:, 2] = rng.uniform(0.0, self.face_height, count)
         self.face = float(ends[-1])
         self.mass_taken += float(mass)
+        self._update_outputs()
         f = blasted_fractions(rng, count, **self.blast)
         ids = self.particles.add(
             mass=masses, f=f, grade=self.grade, hardness=self.hardness(local[:, 0]),
@@ -135,5 +142,4 @@ class Source(Asset):
         """The face does not move by itself: loads are taken by the trucks."""
 
     def outputs(self) -> dict[str, float]:
-        return {"face_m": self.face, "hardness_at_face": float(self.hardness(self.face)),
-                "mass_taken_kg": self.mass_taken}
+        return self._outputs

@@ -16,7 +16,9 @@ rate (a piecewise-constant schedule [(t_i, rate_i)] in kg/s, overridden by
 the input ``discharge_rate`` when connected), the outlet ("exit" events,
 hand-over downstream) and the capacity: output ``inlet_open`` is 0 while
 the held mass is at or above ``capacity`` [kg], which the scenario wires
-to stop the feeding conveyor.
+to stop the feeding conveyor. The held mass is kept as received minus
+discharged (particles do not change mass in storage), not re-summed every
+step.
 """
 
 from __future__ import annotations
@@ -81,6 +83,7 @@ class Stockpile(Asset):
         return float(self._rates[k]) if k >= 0 else 0.0
 
     def _accept(self, ids: np.ndarray, t: float) -> None:
+        self._held_kg += float(self.particles.mass[self.particles.slots(ids)].sum())
         self.model.receive(ids, t)
 
     def step(self, t: float, dt: float) -> None:
@@ -91,10 +94,11 @@ class Stockpile(Asset):
         if leaving.size:
             slots = store.slots(leaving)
             store.position[slots] = self.outlet
-            self._discharged_kg += float(store.mass[slots].sum())
+            leaving_kg = float(store.mass[slots].sum())
+            self._discharged_kg += leaving_kg
+            self._held_kg -= leaving_kg
             self.plant.record("exit", self.name, t + dt, slots, self.outlet)
             self.downstream.receive(leaving, t + dt)
-        self._held_kg = self.held_mass()
         self._readings = self._sensors.sample(store, t + dt)
 
     def outputs(self) -> dict[str, float]:
