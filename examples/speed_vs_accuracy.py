@@ -65,7 +65,7 @@ def main(argv=None) -> int:
     fine = ev.load_run(heldout / "dem_dt0.5.npz")
     reference = ev.outflow_of(fine)
     t0 = float(fine["t0"])
-    t1 = t0 + float(fine["field_time"].size)
+    t1 = t0 + ev.scenario_duration(heldout)
     points = []
 
     def add(label, kind, outflow, wall):

@@ -8,17 +8,19 @@ pointy and depleted) are varied; fields are sampled on the ROM grid.
 
 The training stockpile (``training_config``) is a small version of the
 paper's pile, so that a design runs in minutes on a laptop core: a 52 m
-floor, one inlet 14 m above the centre, one 5 m wide feeder in the floor
-below it (narrower openings arch over and jam in this DEM), disks 0.3-0.5 m (38-177 kg), piles of 70-130 t (800-1500 disks,
-7-10 m tall). The normal stiffness is lowered to 8e6 N/m, which keeps
+floor, one inlet 14 m above the centre, one 6 m wide feeder in the floor
+below it and rolling resistance 0.2 (with 3-5 m openings and the
+default 0.3 the disks arch over the opening and the feeder starves),
+disks 0.3-0.5 m (38-177 kg), piles of 70-130 t (800-1500 disks, 7-10 m
+tall). The normal stiffness is lowered to 8e6 N/m, which keeps
 overlaps below ~1 % of a diameter at the base of this pile (DemConfig's
 rule) and allows a larger stable step.
 
 A scenario: from a filled pile (a checkpoint), every ``CONTROL_STEP`` [s]
 the inflow q_in * step [kg] of the current lot is emitted at the inlet, the
 feeder is set to q_out and the DEM advances; a snapshot per second gives the
-mass field M(t) and the displacement velocity field V(t -> t+1 s) on the
-grid (``surrogate.rom.grid``); the discharge-rate control signal of a
+mass field M(t) and the displacement velocity field V(t -> t+5 s) on the
+grid (``surrogate.rom.grid``, over ``VELOCITY_WINDOW``); the discharge-rate control signal of a
 sample is the mass the DEM feeder actually took in that second (an arch
 over the opening can starve the feeder below its setpoint). Lots are ``LOT_MASS`` [kg] (about one
 truckload, the tracking ids of the accuracy metric) with hardness
@@ -58,7 +60,8 @@ def training_config(**overrides):
     from surrogate.dem import DemConfig
 
     values = dict(floor_width=52.0, side_wall_height=1.0, inlets=[[0.0, 14.0]],
-                  inlet_width=1.0, outlets=[0.0], outlet_width=5.0, diameter_min=0.3,
+                  inlet_width=1.0, outlets=[0.0], outlet_width=6.0, rolling_resistance=0.2,
+                  diameter_min=0.3,
                   diameter_max=0.5, normal_stiffness=8.0e6)
     values.update(overrides)
     return DemConfig(**values)
@@ -189,6 +192,25 @@ def build_pile(cfg, fill: float, seed: int, progress=None):
     return dem, feed
 
 
+VELOCITY_WINDOW = 5.0
+"""Span [s] of the displacements that define a velocity sample (1 s
+displacements are dominated by contact rattling and intermittent surface
+avalanches; over 5 s the steady funnel flow stands out)."""
+
+
+def bulk_fields(snapshots: list, grid: Grid):
+    """``(time, mass, velocity)`` samples from bulk snapshots one ``CONTROL_STEP`` apart:
+    the mass field at t and the displacement velocity over [t, t + VELOCITY_WINDOW]."""
+    lag = max(int(round(VELOCITY_WINDOW / CONTROL_STEP)), 1)
+    count = max(len(snapshots) - lag, 0)
+    times = np.array([float(snapshots[k]["time"]) for k in range(count)])
+    masses = np.array([mass_field(grid, snapshots[k]["position"], snapshots[k]["mass"])
+                       for k in range(count)]).reshape(count, grid.ny, grid.nx)
+    velocities = np.array([displacement_velocity_field(grid, snapshots[k], snapshots[k + lag])
+                           for k in range(count)]).reshape(count, grid.ny, grid.nx, 2)
+    return times, masses, velocities
+
+
 def run_scenario(dem, feed: LotFeed, discharge_rate: float, inflow_rate: float,
                  duration: float, grid: Grid, progress=None) -> dict:
     """Run the DEM under constant controls; return the samples and the outflow.
@@ -202,7 +224,7 @@ def run_scenario(dem, feed: LotFeed, discharge_rate: float, inflow_rate: float,
     start_time = dem.time
     dem.discharged()  # flush: only this run's outflow is returned
     snapshot = dem.snapshot()
-    times, masses, velocities, taken, records = [], [], [], [], []
+    snapshots, taken, records = [bulk_only(snapshot)], [], []
     wall = 0.0
     dem.set_discharge_rate(discharge_rate, outlet=0)
     steps = int(round(duration / CONTROL_STEP))
@@ -214,20 +236,17 @@ def run_scenario(dem, feed: LotFeed, discharge_rate: float, inflow_rate: float,
         wall += time.perf_counter() - tic
         records.append(dem.discharged())
         taken.append(float(records[-1]["mass"].sum()) / CONTROL_STEP)
-        after = dem.snapshot()
-        bulk = bulk_only(snapshot)
-        times.append(snapshot["time"])
-        masses.append(mass_field(grid, bulk["position"], bulk["mass"]))
-        velocities.append(displacement_velocity_field(grid, bulk, after))
-        snapshot = after
+        snapshots.append(bulk_only(dem.snapshot()))
         if progress and (k + 1) % 10 == 0:
             progress(f"t = {dem.time - start_time:.0f}/{duration:.0f} s, "
                      f"held {dem.held_mass() / 1e3:.1f} t, wall {wall:.0f} s")
+    times, masses, velocities = bulk_fields(snapshots, grid)
+    count = len(times)
+    taken = np.array(taken[:count])
     outflow = {key: np.concatenate([np.asarray(r[key]) for r in records])
                for key in ("id", "tracking_id", "mass", "grade", "hardness", "time")}
-    count = len(times)
     return {"time": np.array(times), "mass": np.array(masses), "velocity": np.array(velocities),
-            "discharge_rate": np.array(taken), "setpoint": np.full(count, float(discharge_rate)),
+            "discharge_rate": taken, "setpoint": np.full(count, float(discharge_rate)),
             "inflow_rate": np.full(count, float(inflow_rate)), "wall_s": wall,
             "outflow": outflow}
 

@@ -29,7 +29,7 @@ import numpy as np
 from cosim.particles import ParticleStore
 from cosim.storage import make_storage
 from surrogate.rom import doe, metrics
-from surrogate.rom.grid import Grid, displacement_velocity_field, mass_field, mean_field
+from surrogate.rom.grid import Grid, mean_field
 from surrogate.rom.model import RomModel
 
 PERTURBATION = 1e-6
@@ -145,8 +145,7 @@ def _run_heldout_dem(heldout: Path, name: str, grid: Grid, perturbation: float,
     batches = _emission_batches(emissions, dem.time, steps)
     dem.set_discharge_rate(float(emissions["discharge_rate"]))
     dem.discharged()
-    fields = {k: [] for k in ("time", "mass", "velocity", "grade", "hardness")}
-    snapshot = dem.snapshot()
+    snapshots = [dem.snapshot()]
     wall = 0.0
     for k, rows in enumerate(batches):
         tic = time.perf_counter()
@@ -156,25 +155,30 @@ def _run_heldout_dem(heldout: Path, name: str, grid: Grid, perturbation: float,
                      inlet=0, ids=emissions["id"][rows])
         dem.advance(doe.CONTROL_STEP)
         wall += time.perf_counter() - tic
-        after = dem.snapshot()
-        bulk = doe.bulk_only(snapshot)
-        fields["time"].append(snapshot["time"])
-        fields["mass"].append(mass_field(grid, bulk["position"], bulk["mass"]))
-        fields["velocity"].append(displacement_velocity_field(grid, bulk, after))
-        fields["grade"].append(mean_field(grid, snapshot["position"], snapshot["mass"],
-                                          snapshot["grade"]))
-        fields["hardness"].append(mean_field(grid, snapshot["position"], snapshot["mass"],
-                                             snapshot["hardness"]))
-        snapshot = after
+        snapshots.append(dem.snapshot())
         if (k + 1) % 30 == 0:
             _say(progress, f"  {name}: t = {k + 1}/{steps} s, wall {wall:.0f} s")
+    bulk = [doe.bulk_only(s) for s in snapshots]
+    times, masses, velocities = doe.bulk_fields(bulk, grid)
+    fields = {"time": times, "mass": masses, "velocity": velocities,
+              "grade": [mean_field(grid, s["position"], s["mass"], s["grade"])
+                        for s in bulk[:len(times)]],
+              "hardness": [mean_field(grid, s["position"], s["mass"], s["hardness"])
+                           for s in bulk[:len(times)]]}
     out = dem.discharged()
     np.savez_compressed(heldout / f"{name}.npz",
                         **{f"out_{k}": np.asarray(out[k]) for k in OUTFLOW_KEYS},
                         **{f"field_{k}": np.array(v) for k, v in fields.items()},
-                        wall_s=np.array(wall), dt=np.array(dem.dt),
-                        particles=np.array(len(snapshot["id"])), t0=np.array(fields["time"][0]),
+                        wall_s=np.array(wall), dt=np.array(dem.dt), steps=np.array(steps),
+                        particles=np.array(len(snapshots[0]["id"])),
+                        t0=np.array(float(snapshots[0]["time"])),
                         discharge_rate=emissions["discharge_rate"])
+
+
+def scenario_duration(heldout: Path) -> float:
+    """Simulated seconds [s] of the held-out scenario."""
+    with np.load(Path(heldout) / "emissions.npz") as data:
+        return float(data["duration"])
 
 
 def load_run(path) -> dict:
@@ -275,7 +279,7 @@ def evaluate(model: RomModel, directory, progress=None, rom_options=None) -> dic
     dem = load_run(heldout / "dem.npz")
     perturbed = load_run(heldout / "dem_perturbed.npz")
     t0 = float(dem["t0"])
-    t1 = t0 + float(np.asarray(dem["field_time"]).size) * doe.CONTROL_STEP
+    t1 = t0 + scenario_duration(heldout)
     reference = outflow_of(dem)
     summary = {"heldout": doe.read_meta(directory)["heldout"], "window_s": 30.0,
                "tracking_error": {}, "grade_error": {}, "hardness_error": {},

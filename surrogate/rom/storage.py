@@ -20,9 +20,10 @@ One step of ``dt`` [s] is split into substeps of at most ``max_step`` [s]:
 3. the outlet: the feeder's mass credit grows by q_out * h and whole
    particles leave while their mass fits in the credit (the credit rule of
    ``cosim.storage.StorageModel``), so the discharged mass follows
-   q_out * t to within one particle. As the DEM's belt feeder, it takes the
-   lowest particles in its zone (``outlet_x +- outlet_width / 2``, up to
-   ``feeder_zone_height`` above the floor) first; should the zone hold too
+   q_out * t to within one particle. As the DEM's belt feeder, it takes
+   particles from its zone (``outlet_x +- outlet_width / 2``, up to
+   ``feeder_zone_height`` above the floor), evenly across the opening
+   (``surrogate.rom.surface.feeder_take``); should the zone hold too
    little, the nearest particles to the outlet follow, with horizontal
    offsets weighted by ``FUNNEL_ASPECT`` (the column above the opening
    drains first, material beside it on the floor is the dead zone).
@@ -65,7 +66,8 @@ from cosim.storage import StorageModel, check_discharge_rate
 from surrogate.rom.advect import advect, interpolate
 from surrogate.rom.grid import mass_field, mean_field
 from surrogate.rom.model import RomModel
-from surrogate.rom.surface import column_width, deposit, settle, surface_heights
+from surrogate.rom.surface import (column_width, deposit, feeder_take, settle,
+                                   surface_heights)
 
 FUNNEL_ASPECT = 3.0
 """Weight of horizontal offsets in the outlet's order of leaving [-]."""
@@ -96,6 +98,7 @@ class RomStorage(StorageModel):
         self._field_time = -np.inf
         self._field_rate = None
         self._width = None
+        self._drained = None
         self.out_of_range: list[str] = []
         if model is not None:
             self.fit(model)
@@ -152,6 +155,9 @@ class RomStorage(StorageModel):
         """Surface/packing column width, fixed by the first particles (about one particle)."""
         if self._width is None and len(mass):
             self._width = column_width(self.container, float(np.median(mass)))
+            columns = max(int(round((self.container.x_max - self.container.x_min)
+                                    / self._width)), 1)
+            self._drained = np.zeros(columns)
         return self._width
 
     def _append(self, ids, mass, position) -> None:
@@ -212,8 +218,14 @@ class RomStorage(StorageModel):
             return part[np.argsort(d2[part], kind="stable")]
         return np.argsort(d2, kind="stable")
 
-    def _take(self, position, mass, credit: float) -> tuple[np.ndarray, float]:
+    def _take(self, position, mass, credit: float, drained=None) -> tuple[np.ndarray, float]:
         """Indices of the whole particles the feeder takes with ``credit`` [kg]."""
+        drained = self._drained if drained is None else drained
+        if self.container.outlet_width > 0:
+            taken, credit = feeder_take(self.container, self._width, position, mass, drained,
+                                        credit)
+            if taken.size or credit < mass.min():
+                return taken, credit
         hint = min(int(credit / max(mass.min(), 1e-300)) + 1, mass.size)
         order = self._nearest_first(position, hint)
         count = int(np.searchsorted(np.cumsum(mass[order]), credit, side="right"))
@@ -273,7 +285,7 @@ class RomStorage(StorageModel):
         horizon = float(check_finite_range("horizon", horizon, 0.0, unit="s"))
         self._need_model()
         position, mass, index = self._pos.copy(), self._mass.copy(), np.arange(self._ids.size)
-        credit, taken_all = self._credit_kg, []
+        credit, taken_all, drained = self._credit_kg, [], self._drained.copy()
         substeps = max(1, int(np.ceil(horizon / self.max_step)))
         h = horizon / substeps
         field = self._field if self._field is not None else self.velocity_field(0.0, rate)
@@ -282,7 +294,7 @@ class RomStorage(StorageModel):
                 break
             self._move(field, h, position, mass)
             credit += rate * h
-            taken, credit = self._take(position, mass, credit)
+            taken, credit = self._take(position, mass, credit, drained)
             if taken.size:
                 taken_all.append(index[taken])
                 keep = np.ones(index.size, dtype=bool)
