@@ -166,6 +166,8 @@ def test_a_full_stockpile_stops_the_feed_and_loses_nothing():
     assert series["conveyor_crusher_stockpile.running"].iloc[-1] == 0.0
     assert series["crusher.hopper_mass_kg"].iloc[-1] > 0.0
     assert series["plant.mass_balance_rel_error"].max() < 1e-9
+    held = simulation.plant.particles.total_mass(simulation.assets["stockpile"].owner)
+    assert held > 4000.0 and pile.iloc[-1] == pytest.approx(held, rel=1e-12)
     simulation.close()
 
 
