@@ -4,11 +4,11 @@ Each command runs the real simulator (FMUs via fmpy, SQLite event store) on
 examples/hardness_profile.toml and writes its figures and summary.json.
 
 Tolerances. On the quick run beta_fit with the paper's 12.5 m location error
-is 0.3962, 0.3950, 0.3941 for seeds 1, 2, 3 (0.3951 +- 0.0009), and over 3
+is 0.3957, 0.3947, 0.3942 for seeds 1, 2, 3 (0.3949 +- 0.0006), and over 3
 re-drawn location errors on one run 0.3957 +- 0.0006 (``reproduce
 sensitivity``). The error is a bias of about -0.005 (the uniform error
 averages the concave profile down, so the MWD reads softer than the ore), so
-the brief's 0.01 leaves about 5 standard deviations. Without location error
+the brief's 0.01 leaves about 8 standard deviations. Without location error
 the fit is exact to 1e-7 (the crusher FMU implements the torque model the fit
 assumes), well inside 0.005. The block grindability correlation is -0.98 on
 the quick run against the required -0.8.
