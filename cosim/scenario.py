@@ -612,10 +612,12 @@ def plot_overview(series, path) -> None:
 
 def run_scenario(config: dict, out_dir=None, *, until: float | None = None,
                  seed: int | None = None, storage_model: str | None = None,
-                 progress: bool = False) -> tuple[Simulation, dict]:
+                 progress: bool = False, before_run=None) -> tuple[Simulation, dict]:
     """Build, run and (with ``out_dir``) write a scenario; returns (simulation, summary).
 
-    The FMUs are released and the event store closed before returning.
+    ``before_run`` is called with the built ``Simulation`` before it runs
+    (e.g. to serve its stockpile over REST). The FMUs are released and the
+    event store closed before returning.
     """
     events_path = None
     if out_dir is not None:
@@ -625,6 +627,8 @@ def run_scenario(config: dict, out_dir=None, *, until: float | None = None,
             Path(str(events_path) + suffix).unlink(missing_ok=True)
     simulation = build(config, seed=seed, storage_model=storage_model,
                        events_path=events_path, progress=progress)
+    if before_run is not None:
+        before_run(simulation)
     started = wallclock.perf_counter()
     try:
         simulation.run(until)

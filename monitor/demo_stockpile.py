@@ -108,14 +108,11 @@ def run_scenario(path: str, port: int, host: str, speed: float, duration: float,
                  display_radius_m: float) -> int:
     """Run the mine simulator's scenario ``path`` and serve its stockpile."""
     from cosim.scenario import build, load
-    from surrogate.rest import RestComponent
+    from surrogate.rest import serve_simulation
 
     simulation = build(load(path), progress=False)
-    pile = simulation.assets["stockpile"]
-    rest = RestComponent.attach(
-        simulation.master, simulation.plant.particles, pile.model,
-        lambda: pile.outputs()["discharge_rate_kg_s"],
-        host=host, port=port, realtime_factor=speed, display_radius_m=display_radius_m)
+    rest = serve_simulation(simulation, host=host, port=port, realtime_factor=speed,
+                            display_radius_m=display_radius_m)
     print(f"stockpile REST on http://{host}:{rest.port}", flush=True)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     until = duration if math.isfinite(duration) else simulation.config["simulation"]["until_s"]

@@ -545,6 +545,17 @@ class RestComponent(Component):
         self.server.stop()
 
 
+def serve_simulation(simulation, *, asset: str = "stockpile", **options) -> RestComponent:
+    """Serve the storage asset ``asset`` of a built mine-simulator ``Simulation``.
+
+    ``options`` go to ``RestComponent`` (host, port, realtime_factor,
+    display_radius_m). Call before the simulation runs.
+    """
+    pile = simulation.assets[asset]
+    return RestComponent.attach(simulation.master, simulation.plant.particles, pile.model,
+                                lambda: pile.outputs()["discharge_rate_kg_s"], **options)
+
+
 class _LockGate(Component):
     """First component of the master: takes the REST lock for the step."""
 

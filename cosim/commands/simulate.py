@@ -23,6 +23,12 @@ def register(subparsers) -> None:
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     parser.add_argument("--storage-model", default=None, metavar="NAME",
                         help="override the stockpile's storage model (fifo, mixing, ...)")
+    parser.add_argument("--rest-port", type=int, default=None, metavar="PORT",
+                        help="serve the stockpile's REST API on 127.0.0.1:PORT while running "
+                             "(0: a free port, printed), for `minetwin monitor`")
+    parser.add_argument("--realtime-factor", type=float, default=None, metavar="X",
+                        help="with --rest-port: pace the run to X simulated s per wall s "
+                             "(default: as fast as possible)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(handler=run)
 
@@ -34,10 +40,15 @@ def run(args) -> int:
 
     if args.until is not None and not args.until >= 0:
         raise ValidationError("--until", ">= 0 s", f"got {args.until!r}")
+    if args.rest_port is not None and not 0 <= args.rest_port <= 65535:
+        raise ValidationError("--rest-port", "in [0, 65535]", f"got {args.rest_port!r}")
+    if args.realtime_factor is not None and args.rest_port is None:
+        raise ValidationError("--realtime-factor", "given together with --rest-port")
     config = load(args.scenario)
     try:
         _, summary = run_scenario(config, args.out, until=args.until, seed=args.seed,
-                                  storage_model=args.storage_model, progress=not args.quiet)
+                                  storage_model=args.storage_model, progress=not args.quiet,
+                                  before_run=_rest_server(args))
     except CosimulationError as exc:
         print(f"minetwin simulate: run failed: {exc}", file=sys.stderr)
         return 1
@@ -47,3 +58,18 @@ def run(args) -> int:
     for name in ("summary.json", "timeseries.parquet", "events.sqlite", "overview.png"):
         print(args.out / name)
     return 0
+
+
+def _rest_server(args):
+    """The hook that serves the stockpile over REST, or None without --rest-port."""
+    if args.rest_port is None:
+        return None
+
+    def serve(simulation):
+        from surrogate.rest import serve_simulation
+
+        rest = serve_simulation(simulation, port=args.rest_port,
+                                realtime_factor=args.realtime_factor)
+        print(f"stockpile REST on http://127.0.0.1:{rest.port}", file=sys.stderr, flush=True)
+
+    return serve
