@@ -35,10 +35,13 @@ def register(subparsers) -> None:
 
 
 def _model_options(parser) -> None:
-    parser.add_argument("--mass-modes", type=int, default=12, help="POD modes of the mass field (12)")
-    parser.add_argument("--velocity-modes", type=int, default=16,
-                        help="POD modes of the velocity field (16)")
-    parser.add_argument("--ridge", type=float, default=1e-2, help="ridge penalty lambda (1e-2)")
+    parser.add_argument("--mass-modes", type=int, default=None,
+                        help="POD modes of the mass field (default: chosen by "
+                             "leave-one-run-out cross-validation)")
+    parser.add_argument("--velocity-modes", type=int, default=None,
+                        help="POD modes of the velocity field (default: cross-validated)")
+    parser.add_argument("--ridge", type=float, default=None,
+                        help="ridge penalty lambda (default: cross-validated)")
 
 
 def _progress(message: str) -> None:
@@ -48,8 +51,10 @@ def _progress(message: str) -> None:
 def run_train(args) -> int:
     from surrogate.rom.evaluate import train
 
-    model = train(args.data, args.out, args.mass_modes, args.velocity_modes, args.ridge)
-    print(f"trained on {model.n_samples} samples, grid {model.grid.nx}x{model.grid.ny}; "
+    model = train(args.data, args.out, args.mass_modes, args.velocity_modes, args.ridge,
+                  progress=_progress)
+    print(f"trained on {model.n_samples} samples, grid {model.grid.nx}x{model.grid.ny}, "
+          f"modes {model.n_mass_modes}/{model.n_velocity_modes}, ridge {model.ridge:g}; "
           f"wrote {args.out}")
     return 0
 
@@ -68,7 +73,7 @@ def run_evaluate(args) -> int:
         data = Path(args.out)
         build_data(data, quick=True, seed=args.seed, progress=_progress)
         model = train(data, data / "rom_model.npz", args.mass_modes, args.velocity_modes,
-                      args.ridge)
+                      args.ridge, progress=_progress)
         _progress(f"trained on {model.n_samples} samples; model {data / 'rom_model.npz'}")
     else:
         if not (args.model and args.data):
@@ -79,7 +84,8 @@ def run_evaluate(args) -> int:
     path = write_summary(summary, args.out or data)
     shown = {k: summary[k] for k in ("tracking_error", "tracking_error_dem_noise_floor",
                                      "velocity_field_rel_error", "wall_s_per_simulated_s",
-                                     "speedup_vs_dem", "grade_error", "hardness_error")}
+                                     "speedup_vs_dem", "grade_error", "hardness_error",
+                                     "feed_prediction_error")}
     print(json.dumps(shown, indent=1))
     print(f"wrote {path}", file=sys.stderr)
     rom = summary["tracking_error"]["rom"]

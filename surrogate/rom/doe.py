@@ -256,16 +256,19 @@ def stderr_progress(message: str) -> None:
 
 
 def training_scenarios(quick: bool) -> list[Scenario]:
-    """The design: fills x (discharge, inflow) rates; pointy piles at the start,
-    depleted ones after draining without inflow."""
-    duration = 60.0 if quick else 120.0
+    """The design: fills x (discharge, inflow) rates, 60 s each (quick), plus
+    four 120 s runs from a fuller and an emptier pile (full design). Pointy
+    piles at the start, depleted ones after draining without inflow."""
     rows = [(110e3, 400.0, 0.0), (110e3, 150.0, 150.0), (110e3, 300.0, 500.0),
             (80e3, 250.0, 0.0), (80e3, 450.0, 450.0), (80e3, 100.0, 300.0)]
+    scenarios = [Scenario(f"train_{k}", fill, q_out, q_in, 60.0)
+                 for k, (fill, q_out, q_in) in enumerate(rows)]
     if not quick:
-        rows += [(130e3, 100.0, 0.0), (130e3, 500.0, 250.0), (70e3, 0.0, 400.0),
-                 (130e3, 300.0, 300.0)]
-    return [Scenario(f"train_{k}", fill, q_out, q_in, duration)
-            for k, (fill, q_out, q_in) in enumerate(rows)]
+        more = [(130e3, 100.0, 0.0), (130e3, 500.0, 250.0), (70e3, 0.0, 400.0),
+                (130e3, 300.0, 300.0)]
+        scenarios += [Scenario(f"train_{len(rows) + k}", fill, q_out, q_in, 120.0)
+                      for k, (fill, q_out, q_in) in enumerate(more)]
+    return scenarios
 
 
 HELDOUT = Scenario("heldout", fill=95e3, discharge_rate=200.0, inflow_rate=200.0,
@@ -292,7 +295,8 @@ def _smoothed(rate: np.ndarray) -> np.ndarray:
 
 def load_samples(directory) -> dict:
     """Concatenate every ``train/*.npz`` sample file under ``directory``
-    (discharge rates smoothed over ``RATE_SMOOTHING`` seconds per run)."""
+    (discharge rates smoothed over ``RATE_SMOOTHING`` seconds per run);
+    ``run`` (S,) numbers the file each sample came from."""
     files = sorted(Path(directory, "train").glob("*.npz"))
     parts = [dict(np.load(f)) for f in files]
     for part in parts:
@@ -302,8 +306,10 @@ def load_samples(directory) -> dict:
 
         raise ValidationError("data", "a DOE directory with train/*.npz sample files",
                               f"none under {directory}")
-    return {key: np.concatenate([p[key] for p in parts])
-            for key in ("time", "mass", "velocity", "discharge_rate", "inflow_rate")}
+    samples = {key: np.concatenate([p[key] for p in parts])
+               for key in ("time", "mass", "velocity", "discharge_rate", "inflow_rate")}
+    samples["run"] = np.concatenate([np.full(len(p["time"]), k) for k, p in enumerate(parts)])
+    return samples
 
 
 def write_meta(directory: Path, cfg, grid: Grid, container: Container, extra: dict) -> None:

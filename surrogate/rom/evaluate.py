@@ -191,17 +191,67 @@ def outflow_of(run: dict) -> dict:
 
 
 # -------------------------------------------------------------- training
-def train(directory, out=None, n_mass_modes: int = 12, n_velocity_modes: int = 16,
-          ridge: float = 1e-2) -> RomModel:
-    """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it)."""
+MODEL_CANDIDATES = [(modes, velocity_modes, ridge)
+                    for modes, velocity_modes in ((2, 2), (4, 4), (8, 8), (12, 16))
+                    for ridge in (1e-1, 1.0, 10.0)]
+"""(mass modes, velocity modes, ridge) tried by ``select``."""
+
+
+def _fit(grid, container, samples, keep, modes, velocity_modes, ridge) -> RomModel:
+    return RomModel(grid, modes, velocity_modes, ridge, container).fit(
+        samples["mass"][keep], samples["discharge_rate"][keep], samples["inflow_rate"][keep],
+        samples["velocity"][keep])
+
+
+def leave_one_run_out_error(grid, samples, modes, velocity_modes, ridge) -> float:
+    """Mean velocity-field relative error on each training run when the model
+    is fitted on the other runs (cross-validation by whole DEM runs)."""
+    errors = []
+    for run in np.unique(samples["run"]):
+        held = samples["run"] == run
+        model = _fit(grid, None, samples, ~held, modes, velocity_modes, ridge)
+        predicted = np.array([model.predict(m, q, i, check=False) for m, q, i in
+                              zip(samples["mass"][held], samples["discharge_rate"][held],
+                                  samples["inflow_rate"][held])])
+        errors.append(metrics.velocity_field_rel_error(predicted, samples["velocity"][held],
+                                                       samples["mass"][held]))
+    return float(np.mean(errors))
+
+
+def train(directory, out=None, n_mass_modes: int | None = None,
+          n_velocity_modes: int | None = None, ridge: float | None = None,
+          progress=None) -> RomModel:
+    """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it).
+
+    Options left ``None`` are chosen among ``MODEL_CANDIDATES`` by the
+    smallest leave-one-run-out velocity error (recorded in the model's
+    ``validation``), so the held-out scenario plays no part in the choice.
+    """
     from surrogate.rom.container import Container
 
     meta = doe.read_meta(directory)
     samples = doe.load_samples(directory)
-    model = RomModel(Grid.from_dict(meta["grid"]), n_mass_modes, n_velocity_modes, ridge,
-                     Container.from_dict(meta["container"]))
-    model.fit(samples["mass"], samples["discharge_rate"], samples["inflow_rate"],
-              samples["velocity"])
+    grid = Grid.from_dict(meta["grid"])
+    candidates = [c for c in MODEL_CANDIDATES
+                  if (n_mass_modes is None or c[0] == n_mass_modes)
+                  and (n_velocity_modes is None or c[1] == n_velocity_modes)
+                  and (ridge is None or c[2] == ridge)]
+    if not candidates:
+        candidates = [(n_mass_modes or 4, n_velocity_modes or n_mass_modes or 4,
+                       1.0 if ridge is None else ridge)]
+    validation = {}
+    if len(candidates) > 1 and np.unique(samples["run"]).size > 1:
+        scores = {c: leave_one_run_out_error(grid, samples, *c) for c in candidates}
+        best = min(scores, key=scores.get)
+        validation = {"leave_one_run_out_velocity_rel_error": scores[best],
+                      "candidates": {f"{m}/{v}/{r:g}": e for (m, v, r), e in scores.items()}}
+        _say(progress, f"model selection: modes {best[0]}/{best[1]}, ridge {best[2]:g}, "
+                       f"leave-one-run-out velocity error {scores[best]:.3f}")
+    else:
+        best = candidates[0]
+    model = _fit(grid, Container.from_dict(meta["container"]), samples,
+                 np.ones(samples["run"].size, dtype=bool), *best)
+    model.validation = validation
     if out is not None:
         model.save(out)
     return model
@@ -273,6 +323,45 @@ def score(outflow: dict, reference: dict, t0: float, t1: float) -> dict:
                                                            t0, t1)}
 
 
+FEED_HORIZON = 30.0
+"""Horizon [s] of the feed prediction (paper: the funnel zone, next 30 s)."""
+
+
+def _feed_forecaster(forecasts: list, dem: dict):
+    """An ``on_step`` hook: every FEED_HORIZON seconds, the model's predicted
+    feed grade and hardness for the next FEED_HORIZON seconds."""
+    every = int(round(FEED_HORIZON / doe.CONTROL_STEP))
+    rate = float(dem["discharge_rate"])
+
+    def hook(k, t, storage):
+        if (k + 1) % every:
+            return
+        ids, share = storage.predict(FEED_HORIZON, rate)
+        if share.sum() <= 0:
+            return
+        slots = storage.particles.slots(ids)
+        w = share / share.sum()
+        forecasts.append((t, float(w @ storage.particles.grade[slots]),
+                          float(w @ storage.particles.hardness[slots])))
+    return hook
+
+
+def _forecast_error(forecasts: list, reference: dict) -> dict:
+    """Mean absolute error of predicted feed grade/hardness against the DEM's
+    actual outflow over the same FEED_HORIZON seconds."""
+    errors = {"grade": [], "hardness": []}
+    time = reference["time"]
+    for t, grade, hardness in forecasts:
+        window = (time > t) & (time <= t + FEED_HORIZON)
+        mass = reference["mass"][window]
+        if mass.sum() <= 0:
+            continue
+        errors["grade"].append(abs(grade - mass @ reference["grade"][window] / mass.sum()))
+        errors["hardness"].append(abs(hardness - mass @ reference["hardness"][window]
+                                      / mass.sum()))
+    return {k: float(np.mean(v)) if v else float("nan") for k, v in errors.items()}
+
+
 def evaluate(model: RomModel, directory, progress=None, rom_options=None) -> dict:
     """Score FIFO, mixing and the ROM against the held-out DEM; the summary dict."""
     heldout = Path(directory) / "heldout"
@@ -284,14 +373,18 @@ def evaluate(model: RomModel, directory, progress=None, rom_options=None) -> dic
     summary = {"heldout": doe.read_meta(directory)["heldout"], "window_s": 30.0,
                "tracking_error": {}, "grade_error": {}, "hardness_error": {},
                "wall_s_per_simulated_s": {}}
+    summary["feed_prediction_error"] = {}
     for name in ("fifo", "mixing", "rom"):
         _say(progress, f"held-out run: {name}")
+        forecasts = []
         outflow, wall, _ = run_storage(name, heldout, model,
-                                       options=rom_options if name == "rom" else None)
+                                       options=rom_options if name == "rom" else None,
+                                       on_step=_feed_forecaster(forecasts, dem))
         scores = score(outflow, reference, t0, t1)
         for key, value in scores.items():
             summary[key][name] = value
         summary["wall_s_per_simulated_s"][name] = wall / (t1 - t0)
+        summary["feed_prediction_error"][name] = _forecast_error(forecasts, reference)
     floor = score(outflow_of(perturbed), reference, t0, t1)
     summary["tracking_error_dem_noise_floor"] = floor["tracking_error"]
     summary["grade_error"]["dem_noise_floor"] = floor["grade_error"]

@@ -12,14 +12,16 @@ Equations (our implementation):
   (PCA of the training snapshots): z = Phi_M^T (M - M_mean) / s_M, with
   Phi_M the first ``n_mass_modes`` left singular vectors and s_M the scale
   of each coefficient (singular value / sqrt(S)), so z is O(1).
-- Velocity field V (ny*nx*2, m/s) reduced the same way:
-  V ~= V_mean + Phi_V a, ``n_velocity_modes`` modes.
-- Features phi = [1, z, q_out, q_in, q_out z, q_in z] with the discharge rate
-  q_out and inflow rate q_in [kg/s] divided by ``RATE_SCALE``. The products
-  let the flow scale with the feeder rate for each pile shape (a funnel flow
-  field is close to proportional to the discharge rate).
-- Ridge regression a = W phi, W = argmin |A - W Phi|^2 + lambda |W|^2
-  (intercept not penalised), solved in closed form.
+- Velocity field V (ny*nx*2, m/s) reduced by uncentred POD:
+  V ~= Phi_V a, ``n_velocity_modes`` modes.
+- Features phi = [q_out, q_in, q_out z, q_in z] with the discharge rate
+  q_out and inflow rate q_in [kg/s] divided by ``RATE_SCALE``: the flow is
+  linear in the rates for each pile shape (a funnel flow field is close to
+  proportional to the discharge rate) and vanishes when nothing enters or
+  leaves (a pile at rest does not flow; an intercept would only fit the
+  rattling and avalanche noise of the DEM samples).
+- Ridge regression a = W phi, W = argmin |A - W Phi|^2 + lambda |W|^2,
+  solved in closed form.
 
 Parameters: ``n_mass_modes`` (default 12), ``n_velocity_modes`` (default
 16), ``ridge`` lambda (default 1e-2, dimensionless: features are O(1)).
@@ -58,9 +60,9 @@ class OutOfTrainingRange(UserWarning):
     """An input to the ROM lies outside the range it was trained on."""
 
 
-def _pod(snapshots: np.ndarray, modes: int):
+def _pod(snapshots: np.ndarray, modes: int, centred: bool = True):
     """Mean, orthonormal modes (cells, k) and coefficient scales of ``snapshots`` (S, cells)."""
-    mean = snapshots.mean(axis=0)
+    mean = snapshots.mean(axis=0) if centred else np.zeros(snapshots.shape[1])
     _, singular, vt = np.linalg.svd(snapshots - mean, full_matrices=False)
     modes = min(modes, vt.shape[0])
     scale = singular[:modes] / np.sqrt(snapshots.shape[0])
@@ -100,6 +102,7 @@ class RomModel:
         self.arrays: dict[str, np.ndarray] = {}
         self.ranges: dict[str, list[float]] = {}
         self.n_samples = 0
+        self.validation: dict = {}
 
     # ------------------------------------------------------------ training
     def fit(self, mass, discharge_rate, inflow_rate, velocity) -> "RomModel":
@@ -126,7 +129,7 @@ class RomModel:
             raise ValidationError("samples", "equal counts >= 2 of mass, rates and velocity",
                                   f"got {samples}, {q_out.size}, {q_in.size}, {velocity.shape[0]}")
         m_mean, m_modes, m_scale = _pod(mass, self.n_mass_modes)
-        v_mean, v_modes, v_scale = _pod(velocity, self.n_velocity_modes)
+        v_mean, v_modes, v_scale = _pod(velocity, self.n_velocity_modes, centred=False)
         self.arrays = {"mass_mean": m_mean, "mass_modes": m_modes, "mass_scale": m_scale,
                        "velocity_mean": v_mean, "velocity_modes": v_modes,
                        "velocity_scale": v_scale}
@@ -134,7 +137,6 @@ class RomModel:
         features = self._features(z, q_out, q_in)
         target = (velocity - v_mean) @ v_modes / v_scale
         penalty = self.ridge * np.eye(features.shape[1])
-        penalty[0, 0] = 0.0
         weights = np.linalg.solve(features.T @ features + penalty, features.T @ target)
         self.arrays["weights"] = weights
         residual = self._residual(mass, z)
@@ -153,8 +155,7 @@ class RomModel:
         z = np.atleast_2d(z)
         q_out = np.atleast_1d(q_out)[:, None] / RATE_SCALE
         q_in = np.atleast_1d(q_in)[:, None] / RATE_SCALE
-        ones = np.ones((z.shape[0], 1))
-        return np.hstack((ones, z, q_out, q_in, q_out * z, q_in * z))
+        return np.hstack((q_out, q_in, q_out * z, q_in * z))
 
     def _residual(self, mass, z) -> np.ndarray:
         """Relative norm of the part of each mass field the POD modes do not span."""
@@ -169,16 +170,24 @@ class RomModel:
     def trained(self) -> bool:
         return "weights" in self.arrays
 
+    def mass_residual(self, mass) -> float:
+        """Relative part of one mass field ``(ny, nx)`` the POD modes do not span."""
+        a = self.arrays
+        flat = np.asarray(mass, dtype=np.float64).reshape(1, -1)
+        z = (flat - a["mass_mean"]) @ a["mass_modes"] / a["mass_scale"]
+        return float(self._residual(flat, z)[0])
+
     def check_ranges(self, mass, discharge_rate: float, inflow_rate: float,
-                     residual: float | None = None) -> list[str]:
-        """Warn for every input outside the training range; return the warnings."""
+                     residual: float | None = None, warn: bool = True) -> dict[str, str]:
+        """Messages ``{input name: text}`` for every input outside the training
+        range; each is also warned (``OutOfTrainingRange``) unless ``warn`` is false."""
         values = {"discharge_rate": discharge_rate, "inflow_rate": inflow_rate,
                   "held_mass": float(np.sum(mass))}
         if residual is not None:
             values["mass_distribution_residual"] = residual
         units = {"discharge_rate": "kg/s", "inflow_rate": "kg/s", "held_mass": "kg",
                  "mass_distribution_residual": ""}
-        messages = []
+        messages = {}
         for name, value in values.items():
             low, high = self.ranges[name]
             slack = RANGE_MARGIN * max(abs(high), abs(low), 1e-12)
@@ -189,8 +198,9 @@ class RomModel:
                 message = (f"ROM input {name} = {value:.4g}{unit} is outside the "
                            f"training range [{low:.4g}, {high:.4g}]{unit}; "
                            "prediction is an extrapolation (consider the DEM fidelity)")
-                warnings.warn(message, OutOfTrainingRange, stacklevel=3)
-                messages.append(message)
+                if warn:
+                    warnings.warn(message, OutOfTrainingRange, stacklevel=3)
+                messages[name] = message
         return messages
 
     def predict(self, mass, discharge_rate: float, inflow_rate: float = 0.0,
@@ -217,7 +227,8 @@ class RomModel:
                 "grid": self.grid.to_dict(), "n_mass_modes": self.n_mass_modes,
                 "n_velocity_modes": self.n_velocity_modes, "ridge": self.ridge,
                 "rate_scale": RATE_SCALE, "ranges": self.ranges, "n_samples": self.n_samples,
-                "container": None if self.container is None else self.container.to_dict()}
+                "container": None if self.container is None else self.container.to_dict(),
+                "validation": self.validation}
 
     def save(self, path) -> Path:
         """Write the model as one ``.npz`` file (arrays + JSON header)."""
@@ -254,4 +265,5 @@ class RomModel:
         model.arrays = arrays
         model.ranges = {k: list(v) for k, v in header["ranges"].items()}
         model.n_samples = int(header["n_samples"])
+        model.validation = header.get("validation", {})
         return model

@@ -65,9 +65,12 @@ from cosim.errors import ValidationError, check_finite_range
 from cosim.storage import StorageModel, check_discharge_rate
 from surrogate.rom.advect import advect, interpolate
 from surrogate.rom.grid import mass_field, mean_field
-from surrogate.rom.model import RomModel
+from surrogate.rom.model import OutOfTrainingRange, RomModel
 from surrogate.rom.surface import (column_width, deposit, feeder_take, settle,
                                    surface_heights)
+
+RANGE_CHECK_INTERVAL = 10.0
+"""Seconds between checks of the ROM inputs against the training ranges."""
 
 FUNNEL_ASPECT = 3.0
 """Weight of horizontal offsets in the outlet's order of leaving [-]."""
@@ -99,7 +102,8 @@ class RomStorage(StorageModel):
         self._field_rate = None
         self._width = None
         self._drained = None
-        self.out_of_range: list[str] = []
+        self.out_of_range: dict[str, str] = {}
+        self._next_range_check = -np.inf
         if model is not None:
             self.fit(model)
 
@@ -164,7 +168,9 @@ class RomStorage(StorageModel):
         self._ids = np.concatenate((self._ids, ids))
         self._mass = np.concatenate((self._mass, mass))
         self._pos = np.concatenate((self._pos, position))
-        self._write_back()
+        slots = self.particles.slots(ids)
+        self.particles.position[slots, :2] = position
+        self.particles.position[slots, 2] = 0.0
 
     def inflow_rate(self, t: float) -> float:
         """Inflow control signal [kg/s]: mass received in the last ``inflow_window`` s."""
@@ -174,20 +180,24 @@ class RomStorage(StorageModel):
 
     # ------------------------------------------------------------ flow
     def velocity_field(self, t: float, discharge_rate: float) -> np.ndarray:
-        """Predicted velocity field [m/s] ``(ny, nx, 2)`` for the current mass distribution."""
+        """Predicted velocity field [m/s] ``(ny, nx, 2)`` for the current mass distribution.
+
+        Every ``RANGE_CHECK_INTERVAL`` seconds the inputs are checked against
+        the training ranges; each input found outside is warned once
+        (``OutOfTrainingRange``) and its message kept in ``out_of_range``.
+        """
         model = self._need_model()
         mass = mass_field(model.grid, self._pos, self._mass)
-        # each distinct out-of-range message is warned once and kept for the owner
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            field = model.predict(mass, discharge_rate, self.inflow_rate(t))
-        for warning in caught:
-            message = str(warning.message)
-            if message not in self.out_of_range:
-                self.out_of_range.append(message)
-                warnings.warn_explicit(warning.message, warning.category, warning.filename,
-                                       warning.lineno)
-        return field
+        inflow = self.inflow_rate(t)
+        if t >= self._next_range_check:
+            self._next_range_check = t + RANGE_CHECK_INTERVAL
+            found = model.check_ranges(mass, discharge_rate, inflow, model.mass_residual(mass),
+                                       warn=False)
+            for name, message in found.items():
+                if name not in self.out_of_range:
+                    self.out_of_range[name] = message
+                    warnings.warn(message, OutOfTrainingRange, stacklevel=4)
+        return model.predict(mass, discharge_rate, inflow, check=False)
 
     def _refresh_field(self, t: float, rate: float) -> np.ndarray:
         """The velocity field, predicted again every ``update_interval`` or on a new rate."""

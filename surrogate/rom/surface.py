@@ -31,9 +31,16 @@ import numpy as np
 from surrogate.rom.container import Container
 
 
+PARTICLES_PER_COLUMN = 2.5
+"""Column width in particle extents: one particle per column would make the
+column heights jump by a whole particle, a local "slope" far above any angle
+of repose, and the avalanche rule would then fire on that noise."""
+
+
 def column_width(container: Container, typical_mass: float) -> float:
-    """Column width [m]: about one particle's extent (sqrt of its area in the plane)."""
-    return float(np.sqrt(typical_mass / container.areal_density))
+    """Column width [m]: ``PARTICLES_PER_COLUMN`` particle extents (sqrt of a
+    particle's area in the plane)."""
+    return float(PARTICLES_PER_COLUMN * np.sqrt(typical_mass / container.areal_density))
 
 
 def surface_heights(container: Container, width: float, position, mass) -> np.ndarray:
@@ -108,17 +115,22 @@ def _settle(position, mass, x_min, width, columns, floor, areal_density, max_dro
         stack[c, filled[c]] = p
         filled[c] += 1
         height[c] += mass[p] / (areal_density * width)
-    # angle-of-repose relaxation: the top particle of a too-steep column slides over
-    for _ in range(sweeps):
+    # angle-of-repose relaxation: the top particle of a too-steep column slides
+    # over; sweeps alternate direction and ties alternate side (no drift bias)
+    for sweep in range(sweeps):
         moved = False
-        for c in range(columns):
+        for step in range(columns):
+            c = step if sweep % 2 == 0 else columns - 1 - step
             if filled[c] == 0:
                 continue
             left = height[c] - height[c - 1] if c > 0 else -1.0
             right = height[c] - height[c + 1] if c < columns - 1 else -1.0
             if max(left, right) <= max_drop:
                 continue
-            d = c - 1 if left >= right else c + 1
+            if left == right:
+                d = c - 1 if sweep % 2 == 0 else c + 1
+            else:
+                d = c - 1 if left > right else c + 1
             if filled[d] >= capacity:
                 continue
             filled[c] -= 1
