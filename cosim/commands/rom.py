@@ -29,6 +29,8 @@ def register(subparsers) -> None:
     evaluate.add_argument("--out", help="output directory for summary.json (and the DOE "
                                         "with --quick); default: --data")
     evaluate.add_argument("--seed", type=int, default=0, help="seed of the design (0)")
+    evaluate.add_argument("--check", action="store_true",
+                          help="exit 1 unless every target in summary.json 'targets' is met")
     _model_options(evaluate)
     evaluate.set_defaults(handler=run_evaluate)
     parser.set_defaults(handler=lambda args: parser.print_help() or 2)
@@ -85,8 +87,15 @@ def run_evaluate(args) -> int:
     shown = {k: summary[k] for k in ("tracking_error", "tracking_error_dem_noise_floor",
                                      "velocity_field_rel_error", "wall_s_per_simulated_s",
                                      "speedup_vs_dem", "grade_error", "hardness_error",
-                                     "feed_prediction_error")}
+                                     "feed_prediction_error", "targets")}
     print(json.dumps(shown, indent=1))
     print(f"wrote {path}", file=sys.stderr)
     rom = summary["tracking_error"]["rom"]
-    return 0 if rom == rom else 1
+    if rom != rom:
+        print("minetwin rom evaluate: the ROM run gave no outflow to score", file=sys.stderr)
+        return 1
+    if args.check and not all(summary["targets"].values()):
+        failed = [name for name, ok in summary["targets"].items() if not ok]
+        print(f"minetwin rom evaluate: targets not met: {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0

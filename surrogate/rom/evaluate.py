@@ -397,6 +397,12 @@ def evaluate(model: RomModel, directory, progress=None, rom_options=None) -> dic
                           for m in dem["field_mass"]])
     summary["velocity_field_rel_error"] = metrics.velocity_field_rel_error(
         predicted, dem["field_velocity"], dem["field_mass"])
+    rom = summary["tracking_error"]["rom"]
+    summary["targets"] = {
+        "tracking_error_at_most_0.10": bool(rom <= 0.10),
+        "tracking_error_below_fifo_and_mixing": bool(
+            rom < min(summary["tracking_error"]["fifo"], summary["tracking_error"]["mixing"])),
+        "speedup_at_least_100": bool(summary["speedup_vs_dem"] >= 100.0)}
     summary["dem_particles"] = int(dem["particles"])
     summary["dem_dt_s"] = float(dem["dt"])
     summary["model"] = model.header()
