@@ -31,9 +31,8 @@ uniformly in [0.2, 0.8].
 from __future__ import annotations
 
 import json
-import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -251,10 +250,6 @@ def run_scenario(dem, feed: LotFeed, discharge_rate: float, inflow_rate: float,
             "outflow": outflow}
 
 
-def stderr_progress(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
-
-
 def training_scenarios(quick: bool) -> list[Scenario]:
     """The design: fills x (discharge, inflow) rates, 60 s each (quick), plus
     four 120 s runs from a fuller and an emptier pile (full design). Pointy
@@ -326,7 +321,3 @@ def read_meta(directory) -> dict:
         raise ValidationError("data", "a DOE directory holding doe.json (minetwin rom evaluate "
                               "--quick writes one)", f"no {path}")
     return json.loads(path.read_text())
-
-
-__all__ = ["Scenario", "training_config", "training_scenarios", "HELDOUT", "build_pile",
-           "run_scenario", "LotFeed", "asdict"]

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -81,8 +82,8 @@ def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
         doe.save_samples(path, result)
     doe.write_meta(directory, cfg, grid, container,
                    {"quick": quick, "seed": seed,
-                    "scenarios": [doe.asdict(s) for s in scenarios],
-                    "heldout": doe.asdict(doe.HELDOUT)})
+                    "scenarios": [asdict(s) for s in scenarios],
+                    "heldout": asdict(doe.HELDOUT)})
     heldout = directory / "heldout"
     initial = heldout / "initial.npz"
     if not initial.exists():

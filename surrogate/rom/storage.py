@@ -260,7 +260,8 @@ class RomStorage(StorageModel):
                 leaving.append(self._ids[taken])
                 keep = np.ones(self._ids.size, dtype=bool)
                 keep[taken] = False
-                self._ids, self._mass, self._pos = self._ids[keep], self._mass[keep], self._pos[keep]
+                self._ids, self._mass, self._pos = (self._ids[keep], self._mass[keep],
+                                                    self._pos[keep])
         self._write_back()
         return np.concatenate(leaving) if leaving else np.empty(0, dtype=np.uint64)
 
