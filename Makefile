@@ -27,7 +27,6 @@ fmus: $(FMU_STAMP)
 setup: $(STAMP) $(FMU_STAMP)
 
 demo: setup
-	$(BIN)/python examples/foundation_demo.py --out $(OUT)/demo
 	$(BIN)/minetwin simulate examples/step_response.toml --until 600 --out $(OUT)/demo/mine
 	$(BIN)/minetwin integration-test --duration 30 --speed 1 --out $(OUT)/demo/integration
 

@@ -15,18 +15,18 @@ import sys
 from cosim.errors import ValidationError
 
 COMMAND_MODULES = (
-    "cosim.commands.sizes",
-    "cosim.commands.events",
-    "cosim.commands.reference",
-    "cosim.commands.monitor",
-    "cosim.commands.serve",
-    "cosim.commands.stockpile",
-    "cosim.commands.integration",
-    "cosim.commands.rom",
-    "cosim.commands.dem",
     "cosim.commands.simulate",
     "cosim.commands.reproduce",
+    "cosim.commands.integration",
+    "cosim.commands.serve",
+    "cosim.commands.stockpile",
+    "cosim.commands.monitor",
+    "cosim.commands.dem",
+    "cosim.commands.rom",
     "cosim.commands.fmus",
+    "cosim.commands.reference",
+    "cosim.commands.events",
+    "cosim.commands.sizes",
 )
 """Modules that add subcommands, in the order ``--help`` lists them."""
 
