@@ -3,7 +3,7 @@
 Issue 10 / paper sections "Integration test" and "Predicting the properties
 of the mill feed": on the held-out scenario (300 s, rates and pile state not
 in the ROM's training design) every storage model -- FIFO, perfect mixing,
-the ROM at several POD mode counts, the DEM at several time steps -- is
+the ROM at several POD mode counts, the DEM at two time steps -- is
 scored by its tracking error (mean total-variation distance of the 30 s
 outflow compositions per 15 t lot) against a fine-step DEM (dt = stable_dt /
 2) and placed against its wall seconds per simulated second (log axis).
@@ -30,8 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-DT_FACTORS = (0.5, 2.0, 4.0)
-"""DEM time steps run besides the default, as multiples of stable_dt; 0.5 is the reference."""
+DT_FACTORS = (0.5, 2.0)
+"""DEM time steps run besides the default, as multiples of stable_dt; 0.5 is the
+reference. (4 stable_dt was tried: the run slowed to a crawl, the mark of an
+unstable step, so the ladder stops at 2.)"""
 
 MODE_COUNTS = (2, 4, 8, 16)
 """POD mode counts (mass and velocity) of the ROM points."""
@@ -84,19 +86,23 @@ def main(argv=None) -> int:
         if k == middle:
             captured.update(storage.fields(), time=time)
 
+    default = ev.train(data)
     for modes in MODE_COUNTS:
-        model = ev.train(data, n_mass_modes=modes, n_velocity_modes=modes)
+        is_default = modes == default.n_mass_modes == default.n_velocity_modes
+        model = default if is_default else ev.train(data, n_mass_modes=modes,
+                                                    n_velocity_modes=modes)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             ev.run_storage("rom", heldout, model)  # compile and warm up the kernels
-            outflow, wall, _ = ev.run_storage("rom", heldout, model)
-        add(f"ROM {modes} modes", "rom", outflow, wall)
-    model = ev.train(data)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        outflow, wall, _ = ev.run_storage("rom", heldout, model, on_step=capture)
-    add(f"ROM {model.n_mass_modes}/{model.n_velocity_modes} modes (default)", "rom", outflow, wall)
-    for factor, name in ((1.0, "dem"), (2.0, "dem_dt2"), (4.0, "dem_dt4")):
+            outflow, wall, _ = ev.run_storage("rom", heldout, model,
+                                              on_step=capture if is_default else None)
+        add(f"ROM {modes} modes" + (" (default)" if is_default else ""), "rom", outflow, wall)
+    if not captured:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            ev.run_storage("rom", heldout, default, on_step=capture)
+    model = default
+    for factor, name in [(1.0, "dem")] + [(f, f"dem_dt{f:g}") for f in DT_FACTORS if f > 1]:
         run = ev.load_run(heldout / f"{name}.npz")
         add(f"DEM dt = {factor:g} stable_dt", "dem", ev.outflow_of(run), float(run["wall_s"]))
     dem = ev.load_run(heldout / "dem.npz")
@@ -110,11 +116,11 @@ def main(argv=None) -> int:
 
     colours = {"fifo": "tab:red", "mixing": "tab:orange", "rom": "tab:blue", "dem": "tab:green"}
     fig, ax = plt.subplots(figsize=(7.5, 5))
-    for p in points:
+    for k, p in enumerate(points):
         ax.scatter(p["wall_s_per_simulated_s"], p["tracking_error"], color=colours[p["kind"]],
                    s=40, zorder=3)
         ax.annotate(p["label"], (p["wall_s_per_simulated_s"], p["tracking_error"]),
-                    textcoords="offset points", xytext=(5, 4), fontsize=8)
+                    textcoords="offset points", xytext=(6, 5 if k % 2 else -11), fontsize=8)
     ax.axhline(floor, color="grey", ls="--", lw=1,
                label=f"DEM chaos floor (1e-6 m perturbation): {floor:.2f}")
     ax.axhline(0.10, color="black", ls=":", lw=1, label="target 0.10")
