@@ -183,3 +183,23 @@ def test_bad_model_file_is_refused_by_name(tmp_path):
         RomModel.load(bad)
     with pytest.raises(ValidationError, match="^model: "):
         RomStorage().receive(np.array([1], dtype=np.uint64), 0.0)
+
+
+@pytest.mark.filterwarnings("ignore::surrogate.rom.model.OutOfTrainingRange")
+def test_stockpile_asset_runs_on_the_rom_by_name(trained, tmp_path):
+    from surrogate.stockpile import StockpileAsset
+
+    model, _ = trained
+    path = model.save(tmp_path / "pile.rom.npz")
+    asset = StockpileAsset("rom", storage_options={"model": str(path)})
+    for k in range(30):
+        asset.receive_bin(100 + k // 10, 500.0, 0.5, 1.0 + k % 2)
+        asset.set_discharge_rate(0.0 if k < 10 else 400.0)
+        asset.step(1.0)
+    assert asset.mass_out_kg > 0
+    assert asset.mass_in_kg == pytest.approx(asset.mass_out_kg + asset.particles.total_mass(),
+                                             rel=1e-12)
+    assert np.isfinite(asset.fields()["mass"]).any()
+    held = asset.particles.total_mass()
+    assert asset.predicted_feed(30.0)["mass_kg"] == pytest.approx(
+        min(asset.storage._credit_kg + 400.0 * 30.0, held))
