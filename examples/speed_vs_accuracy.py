@@ -119,8 +119,10 @@ def main(argv=None) -> int:
     for k, p in enumerate(points):
         ax.scatter(p["wall_s_per_simulated_s"], p["tracking_error"], color=colours[p["kind"]],
                    s=40, zorder=3)
+        right = k % 2 == 0  # alternate sides so neighbouring labels do not collide
         ax.annotate(p["label"], (p["wall_s_per_simulated_s"], p["tracking_error"]),
-                    textcoords="offset points", xytext=(6, 5 if k % 2 else -11), fontsize=8)
+                    textcoords="offset points", xytext=(7 if right else -7, -3),
+                    ha="left" if right else "right", fontsize=8)
     ax.axhline(floor, color="grey", ls="--", lw=1,
                label=f"DEM chaos floor (1e-6 m perturbation): {floor:.2f}")
     ax.axhline(0.10, color="black", ls=":", lw=1, label="target 0.10")
