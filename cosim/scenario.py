@@ -604,6 +604,8 @@ def plot_overview(series, path) -> None:
         twin = axes[3].twinx()
         twin.plot(t, series["mill.hardness_avg"].to_numpy(), color="tab:red", lw=0.8)
         twin.set_ylabel("mill hardness [-] (30 s avg)", color="tab:red")
+        # hardness is read against 1 (the reference ore); an offset label hides that
+        twin.ticklabel_format(axis="y", useOffset=False)
     axes[-1].set_xlabel("time [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
