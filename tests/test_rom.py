@@ -203,3 +203,60 @@ def test_stockpile_asset_runs_on_the_rom_by_name(trained, tmp_path):
     held = asset.particles.total_mass()
     assert asset.predicted_feed(30.0)["mass_kg"] == pytest.approx(
         min(asset.storage._credit_kg + 400.0 * 30.0, held))
+
+
+def test_out_of_range_input_hands_the_pile_over_to_the_dem(trained):
+    """fallback="dem": the ROM pile continues as DEM with every id, its mass,
+    attributes and tracking id, disks not overlapping, mass conserved exactly."""
+    model, _ = trained
+    rng = np.random.default_rng(5)
+    position = heap(rng, 6.0, 0.0)
+    store = ParticleStore(first_id=10)
+    store.add_attribute("tracking_id", np.uint64, 0)
+    ids = store.add(mass=rng.uniform(200, 300, len(position)), f=sizes.swebrec(),
+                    grade=rng.uniform(0, 1, len(position)), hardness=1.0, owner=OWNER,
+                    tracking_id=np.arange(len(position)) % 7)
+    config = {"floor_width": 20.0, "inlets": [[0.0, 9.0]], "outlets": [0.0],
+              "outlet_width": 3.0, "side_wall_height": 8.0, "diameter_min": 0.4,
+              "diameter_max": 0.6, "normal_stiffness": 8.0e6, "rolling_resistance": 0.2}
+    storage = make_storage("rom", model=model, rng=np.random.default_rng(0), fallback="dem",
+                           fallback_config=config)
+    storage.bind(store, OWNER)
+    storage.place(ids, position)
+    total = store.total_mass()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the synthetic heap's shape is out of range too
+        left = [storage.step(0.0, 1.0, 300.0)]
+    assert storage.dem_storage is None  # in range so far: still the ROM
+    with pytest.warns(OutOfTrainingRange, match="continues as DEM"):
+        left.append(storage.step(1.0, 1.0, 1900.0))
+    dem = storage.dem_storage.dem
+    assert storage.fallen_back_at == 1.0
+    gone = np.concatenate(left)
+    assert np.array_equal(np.sort(dem.id), np.sort(ids[~np.isin(ids, gone)]))
+    slots = store.slots(dem.id)
+    np.testing.assert_array_equal(dem.mass, store.mass[slots])
+    np.testing.assert_array_equal(dem.grade, store.grade[slots])
+    np.testing.assert_array_equal(dem.tracking_id, store.attribute("tracking_id")[slots])
+    assert dem.held_mass() == pytest.approx(total - store.mass[store.slots(gone)].sum(),
+                                            rel=1e-12)
+    store.set_owner(store.slots(gone), OWNER + 1, 2.0)
+    for k in range(2, 6):
+        new = store.add(mass=np.full(4, 250.0), f=sizes.swebrec(), grade=0.5, hardness=2.0,
+                        owner=OWNER, tracking_id=100 + k)
+        storage.receive(new, float(k))
+        total += 1000.0
+        leaving = storage.step(float(k), 1.0, 1900.0)
+        store.set_owner(store.slots(leaving), OWNER + 1, k + 1.0)
+        left.append(leaving)
+    left = np.concatenate(left)
+    assert left.size and np.unique(left).size == left.size
+    assert np.intersect1d(left, storage.held_ids()).size == 0
+    assert storage.held_mass() == pytest.approx(dem.held_mass(), rel=1e-12)
+    assert store.total_mass(OWNER) + store.mass[store.slots(left)].sum() == pytest.approx(
+        total, rel=1e-12)
+    # disks were handed over without deep overlaps: none is thrown off the pile
+    assert dem.max_overlap_ratio() < 0.05
+    assert (np.abs(dem.pos[:, 0]) <= 10.0).all() and (dem.pos[:, 1] > 0).all()
+    assert np.isfinite(storage.fields()["mass"]).all()
+    assert storage.fields()["mass"].sum() == pytest.approx(dem.held_mass(), rel=1e-12)

@@ -51,6 +51,21 @@ inflow_window : float
     Averaging window of the inflow-rate control signal [s] (default 30 s).
 rng : numpy.random.Generator, optional
     Seeded generator of the surface layer (default seed 0).
+fallback : {None, "dem"}
+    What to do when an input leaves the training ranges (default None:
+    warn and keep extrapolating). With ``"dem"`` the storage hands its pile
+    over to the DEM at the first step that sees such an input and runs as
+    ``surrogate.dem_storage.DemStorage`` from then on (``fallen_back_at``
+    [s] tells when): every held particle becomes a DEM disk with the same
+    id, mass, grade, hardness, size fractions and tracking id, at its x
+    position and in its height order (``surrogate.rom.handover``: lifted
+    just enough that no disks overlap), at rest; the feeder's mass credit
+    carries over, so held and discharged mass and ids stay exact.
+fallback_config : DemConfig or dict or str, optional
+    The DEM of the fall-back (a ``DemConfig``, a dict of its fields or a
+    TOML path); default ``surrogate.rom.doe.training_config()``, the
+    stockpile the ROM was trained on. Its floor must span the model's
+    container.
 """
 
 from __future__ import annotations
@@ -63,8 +78,10 @@ import numpy as np
 
 from cosim.errors import ValidationError, check_finite_range
 from cosim.storage import StorageModel, check_discharge_rate
+from surrogate.rom import doe
 from surrogate.rom.advect import advect, interpolate
 from surrogate.rom.grid import mass_field, mean_field
+from surrogate.rom.handover import drop_heights
 from surrogate.rom.model import OutOfTrainingRange, RomModel
 from surrogate.rom.surface import (column_width, deposit, feeder_take, settle,
                                    surface_heights)
@@ -75,6 +92,9 @@ RANGE_CHECK_INTERVAL = 10.0
 FUNNEL_ASPECT = 3.0
 """Weight of horizontal offsets in the outlet's order of leaving [-]."""
 
+FALLBACKS = (None, "dem")
+"""Accepted values of ``RomStorage(fallback=...)``."""
+
 
 class RomStorage(StorageModel):
     """Reduced-order stockpile model behind the storage interface (see module docstring)."""
@@ -83,8 +103,15 @@ class RomStorage(StorageModel):
     has_geometry = True
 
     def __init__(self, model=None, *, update_interval: float = 1.0, max_step: float = 1.0,
-                 inflow_window: float = 30.0, rng: np.random.Generator | None = None):
+                 inflow_window: float = 30.0, rng: np.random.Generator | None = None,
+                 fallback: str | None = None, fallback_config=None):
         super().__init__()
+        if fallback not in FALLBACKS:
+            raise ValidationError("fallback", f"one of {FALLBACKS}", f"got {fallback!r}")
+        self.fallback = fallback
+        self.fallback_config = fallback_config
+        self.dem_storage = None
+        self.fallen_back_at: float | None = None
         self.update_interval = float(check_finite_range(
             "update_interval", update_interval, 0.0, low_open=True, unit="s"))
         self.max_step = float(check_finite_range("max_step", max_step, 0.0, low_open=True,
@@ -132,6 +159,8 @@ class RomStorage(StorageModel):
     # ------------------------------------------------------------ inflow
     def receive(self, ids, t: float) -> None:
         """Particles arriving at the inlet settle by the surface layer and join the bulk."""
+        if self.dem_storage is not None:
+            return self.dem_storage.receive(ids, t)
         self._need_model()
         ids = np.asarray(ids, dtype=np.uint64)
         if ids.size == 0:
@@ -144,6 +173,9 @@ class RomStorage(StorageModel):
 
     def place(self, ids, position) -> None:
         """Particles already resting in the pile at ``position`` (N, 2) [m] (initial state)."""
+        if self.dem_storage is not None:
+            raise ValidationError("place", "calls before the hand-over to the DEM",
+                                  f"the storage runs as DEM since t = {self.fallen_back_at} s")
         self._need_model()
         ids = np.asarray(ids, dtype=np.uint64)
         position = np.asarray(position, dtype=np.float64).reshape(-1, 2)
@@ -189,7 +221,7 @@ class RomStorage(StorageModel):
         model = self._need_model()
         mass = mass_field(model.grid, self._pos, self._mass)
         inflow = self.inflow_rate(t)
-        if t >= self._next_range_check:
+        if t >= self._next_range_check or discharge_rate != self._field_rate:
             self._next_range_check = t + RANGE_CHECK_INTERVAL
             found = model.check_ranges(mass, discharge_rate, inflow, model.mass_residual(mass),
                                        warn=False)
@@ -246,6 +278,12 @@ class RomStorage(StorageModel):
         rate = check_discharge_rate(discharge_rate)
         dt = float(check_finite_range("dt", dt, 0.0, unit="s"))
         self._need_model()
+        if self.fallback == "dem" and self.dem_storage is None and self._ids.size:
+            self._refresh_field(t, rate)
+            if self.out_of_range:
+                self._hand_over_to_dem(t)
+        if self.dem_storage is not None:
+            return self.dem_storage.step(t, dt, rate)
         substeps = max(1, int(np.ceil(dt / self.max_step)))
         h = dt / substeps
         leaving = []
@@ -275,9 +313,48 @@ class RomStorage(StorageModel):
             self.particles.velocity[slots, :2] = interpolate(self._field, g.x_min, g.y_min,
                                                              g.dx, g.dy, self._pos)
 
+    def _hand_over_to_dem(self, t: float) -> None:
+        """Continue as DEM from time ``t`` (see ``fallback`` in the module docstring)."""
+        from surrogate.dem import Dem, DemConfig
+        from surrogate.dem_storage import DemStorage
+
+        config = self.fallback_config
+        if config is None:
+            config = doe.training_config()
+        elif isinstance(config, dict):
+            config = DemConfig.from_dict(config)
+        elif isinstance(config, (str, Path)):
+            config = DemConfig.from_toml(str(config))
+        c = self.container
+        half = 0.5 * config.floor_width
+        if not (half >= max(-c.x_min, c.x_max) - 1e-9 and config.outlets):
+            raise ValidationError("fallback_config", f"a DEM whose floor spans the container "
+                                  f"[{c.x_min:g}, {c.x_max:g}] m and has an outlet",
+                                  f"got floor_width {config.floor_width:g} m")
+        dem = Dem(config, seed=int(self.rng.integers(2 ** 31)))
+        dem.time = float(t)
+        slots = self.particles.slots(self._ids)
+        tracking = (self.particles.attribute("tracking_id")[slots]
+                    if "tracking_id" in self.particles.attribute_names else self._ids)
+        radius = 0.5 * config.diameter_of_mass(self._mass)
+        position = drop_heights(self._pos, radius, 0.0, -half, half)
+        dem.place(position, self._mass, self.particles.grade[slots],
+                  self.particles.hardness[slots], self.particles.f[slots],
+                  np.asarray(tracking).astype(np.uint64), ids=self._ids)
+        dem.credits[0] = self._credit_kg
+        self.dem_storage = DemStorage(dem=dem).bind(self.particles, self.owner)
+        self.dem_storage.sync()
+        self.fallen_back_at = float(t)
+        self._ids, self._mass, self._pos = (np.empty(0, dtype=np.uint64), np.empty(0),
+                                            np.empty((0, 2)))
+        warnings.warn(f"ROM stockpile continues as DEM from t = {t:g} s "
+                      f"({len(slots)} particles handed over)", OutOfTrainingRange, stacklevel=3)
+
     # ------------------------------------------------------------ queries
     def held_ids(self) -> np.ndarray:
         """Held ids, nearest to the outlet first (the feeder's current order)."""
+        if self.dem_storage is not None:
+            return self.dem_storage.held_ids()
         return self._ids[self._nearest_first(self._pos, self._ids.size)]
 
     def _forget(self, ids) -> None:
@@ -292,6 +369,8 @@ class RomStorage(StorageModel):
         the ones the outlet takes, then the nearest remaining ones, are
         credited until rate * horizon (plus the current credit) is covered.
         """
+        if self.dem_storage is not None:
+            return self.dem_storage.predict(horizon, discharge_rate)
         rate = check_discharge_rate(discharge_rate)
         horizon = float(check_finite_range("horizon", horizon, 0.0, unit="s"))
         self._need_model()
@@ -320,12 +399,20 @@ class RomStorage(StorageModel):
 
     def fields(self) -> dict[str, np.ndarray]:
         """Fields on the model grid: ``mass`` [kg/cell], ``velocity`` [m/s] (ny, nx, 2)
-        as last predicted, ``grade`` and ``hardness`` (mass-weighted, NaN if empty)."""
+        as last predicted (after a hand-over: the DEM's mass-weighted particle
+        velocity, 0 where empty), ``grade`` and ``hardness`` (mass-weighted,
+        NaN if empty)."""
         model = self._need_model()
-        slots = self.particles.slots(self._ids)
         grid = model.grid
-        velocity = self._field if self._field is not None else np.zeros(grid.shape + (2,))
-        return {"mass": mass_field(grid, self._pos, self._mass), "velocity": velocity,
-                "grade": mean_field(grid, self._pos, self._mass, self.particles.grade[slots]),
-                "hardness": mean_field(grid, self._pos, self._mass,
-                                       self.particles.hardness[slots])}
+        if self.dem_storage is not None:
+            dem = self.dem_storage.dem
+            ids, position, mass = dem.id, dem.pos, dem.mass
+            velocity = np.stack([np.nan_to_num(mean_field(grid, position, mass, dem.vel[:, k]))
+                                 for k in range(2)], axis=-1)
+        else:
+            ids, position, mass = self._ids, self._pos, self._mass
+            velocity = self._field if self._field is not None else np.zeros(grid.shape + (2,))
+        slots = self.particles.slots(ids)
+        return {"mass": mass_field(grid, position, mass), "velocity": velocity,
+                "grade": mean_field(grid, position, mass, self.particles.grade[slots]),
+                "hardness": mean_field(grid, position, mass, self.particles.hardness[slots])}
