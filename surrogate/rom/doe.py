@@ -251,16 +251,18 @@ def run_scenario(dem, feed: LotFeed, discharge_rate: float, inflow_rate: float,
 
 
 def training_scenarios(quick: bool) -> list[Scenario]:
-    """The design: fills x (discharge, inflow) rates, 60 s each (quick), plus
-    four 120 s runs from a fuller and an emptier pile (full design). Pointy
-    piles at the start, depleted ones after draining without inflow."""
+    """The design: fills x (discharge, inflow) rates up to the paper's 2 t/s,
+    60 s each (quick), plus six 120 s runs from a fuller and an emptier pile
+    (full design). Pointy piles at the start, depleted ones after draining
+    without (or with less) inflow."""
     rows = [(110e3, 400.0, 0.0), (110e3, 150.0, 150.0), (110e3, 300.0, 500.0),
-            (80e3, 250.0, 0.0), (80e3, 450.0, 450.0), (80e3, 100.0, 300.0)]
+            (80e3, 250.0, 0.0), (80e3, 450.0, 450.0), (80e3, 100.0, 300.0),
+            (110e3, 2000.0, 1800.0), (80e3, 800.0, 1500.0), (110e3, 1500.0, 700.0)]
     scenarios = [Scenario(f"train_{k}", fill, q_out, q_in, 60.0)
                  for k, (fill, q_out, q_in) in enumerate(rows)]
     if not quick:
         more = [(130e3, 100.0, 0.0), (130e3, 500.0, 250.0), (70e3, 0.0, 400.0),
-                (130e3, 300.0, 300.0)]
+                (130e3, 300.0, 300.0), (130e3, 1800.0, 2000.0), (70e3, 1000.0, 1300.0)]
         scenarios += [Scenario(f"train_{len(rows) + k}", fill, q_out, q_in, 120.0)
                       for k, (fill, q_out, q_in) in enumerate(more)]
     return scenarios
@@ -269,6 +271,17 @@ def training_scenarios(quick: bool) -> list[Scenario]:
 HELDOUT = Scenario("heldout", fill=95e3, discharge_rate=200.0, inflow_rate=200.0,
                    duration=300.0)
 """Held-out scenario: fill and rates not in the training design, 300 s."""
+
+HELDOUT_SCENARIOS = (
+    HELDOUT,
+    Scenario("heldout_q1200", fill=100e3, discharge_rate=1200.0, inflow_rate=1200.0,
+             duration=300.0),
+    Scenario("heldout_q1500", fill=85e3, discharge_rate=1500.0, inflow_rate=1500.0,
+             duration=300.0),
+)
+"""The held-out set: the 200 kg/s run and two at the paper's throughput
+(1.2 and 1.5 t/s in and out; paper: up to 2 t/s). Fills and rates are not in
+the training design; each scenario's files live in the directory of its name."""
 
 
 def save_samples(path: Path, result: dict) -> None:
