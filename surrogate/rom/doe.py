@@ -255,17 +255,18 @@ def training_scenarios(quick: bool) -> list[Scenario]:
     60 s each (quick), plus six 120 s runs from a fuller and an emptier pile
     (full design). Pointy piles at the start, depleted ones after draining
     without (or with less) inflow."""
-    rows = [(110e3, 400.0, 0.0), (110e3, 150.0, 150.0), (110e3, 300.0, 500.0),
-            (80e3, 250.0, 0.0), (80e3, 450.0, 450.0), (80e3, 100.0, 300.0),
-            (110e3, 2000.0, 1800.0), (80e3, 800.0, 1500.0), (110e3, 1500.0, 700.0)]
-    scenarios = [Scenario(f"train_{k}", fill, q_out, q_in, 60.0)
-                 for k, (fill, q_out, q_in) in enumerate(rows)]
+    rows = [(fill, q_out, q_in, 60.0) for fill, q_out, q_in in (
+        (110e3, 400.0, 0.0), (110e3, 150.0, 150.0), (110e3, 300.0, 500.0),
+        (80e3, 250.0, 0.0), (80e3, 450.0, 450.0), (80e3, 100.0, 300.0),
+        (110e3, 2000.0, 1800.0), (80e3, 800.0, 1500.0), (110e3, 1500.0, 700.0))]
     if not quick:
-        more = [(130e3, 100.0, 0.0), (130e3, 500.0, 250.0), (70e3, 0.0, 400.0),
-                (130e3, 300.0, 300.0), (130e3, 1800.0, 2000.0), (70e3, 1000.0, 1300.0)]
-        scenarios += [Scenario(f"train_{len(rows) + k}", fill, q_out, q_in, 120.0)
-                      for k, (fill, q_out, q_in) in enumerate(more)]
-    return scenarios
+        rows += [(130e3, 100.0, 0.0, 120.0), (130e3, 500.0, 250.0, 120.0),
+                 (70e3, 0.0, 400.0, 120.0), (130e3, 300.0, 300.0, 120.0),
+                 (130e3, 1800.0, 2000.0, 120.0), (70e3, 1000.0, 1300.0, 120.0)]
+    # named by content, so a data directory grown by a later design keeps its runs right
+    return [Scenario(f"train_{fill / 1e3:.0f}t_out{q_out:.0f}_in{q_in:.0f}_{duration:.0f}s",
+                     fill, q_out, q_in, duration)
+            for fill, q_out, q_in, duration in rows]
 
 
 HELDOUT = Scenario("heldout", fill=95e3, discharge_rate=200.0, inflow_rate=200.0,

@@ -327,10 +327,12 @@ class RomStorage(StorageModel):
             config = DemConfig.from_toml(str(config))
         c = self.container
         half = 0.5 * config.floor_width
-        if not (half >= max(-c.x_min, c.x_max) - 1e-9 and config.outlets):
-            raise ValidationError("fallback_config", f"a DEM whose floor spans the container "
-                                  f"[{c.x_min:g}, {c.x_max:g}] m and has an outlet",
-                                  f"got floor_width {config.floor_width:g} m")
+        # the DEM's floor is y = 0 centred on x = 0: the ROM's container must lie on it
+        if not (half >= max(-c.x_min, c.x_max) - 1e-9 and config.outlets and c.floor == 0.0):
+            raise ValidationError("fallback_config", f"a DEM whose floor (y = 0) spans the "
+                                  f"container [{c.x_min:g}, {c.x_max:g}] m and has an outlet",
+                                  f"got floor_width {config.floor_width:g} m, container floor "
+                                  f"{c.floor:g} m")
         dem = Dem(config, seed=int(self.rng.integers(2 ** 31)))
         dem.time = float(t)
         slots = self.particles.slots(self._ids)
