@@ -14,8 +14,12 @@ Writes into --out: ``speed_vs_accuracy.png``, ``speed_vs_accuracy.json``
 the DEM and the ROM at the middle of the held-out run, the paper's figure
 "pileDistribution").
 
+The chart uses the 200 kg/s held-out scenario (``heldout``); the data build
+also runs the paper-throughput held-out scenarios that ``minetwin rom
+evaluate`` scores (``surrogate.rom.doe.HELDOUT_SCENARIOS``).
+
 Run (from the repository root; the first run builds the DEM data, about
-10-20 minutes on one core, later runs reuse it)::
+10-20 minutes on 2 cores, later runs reuse it)::
 
     .venv/bin/python examples/speed_vs_accuracy.py --data examples/out/rom_data --out examples/out
 """
