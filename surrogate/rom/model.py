@@ -86,10 +86,15 @@ class RomModel:
     container : Container, optional
         The stockpile geometry the training data came from (saved with the
         model; the storage asset needs it).
+    dem_config : dict, optional
+        The training DEM's configuration (``DemConfig.to_dict()``; saved
+        with the model): the storage's surface-layer DEM uses its contact
+        law, particle density and inlet.
     """
 
     def __init__(self, grid: Grid, n_mass_modes: int = 12, n_velocity_modes: int = 16,
-                 ridge: float = 1e-2, container: Container | None = None):
+                 ridge: float = 1e-2, container: Container | None = None,
+                 dem_config: dict | None = None):
         if n_mass_modes < 1 or n_velocity_modes < 1:
             raise ValidationError("modes", ">= 1", f"got {n_mass_modes}, {n_velocity_modes}")
         if not ridge >= 0:
@@ -99,6 +104,7 @@ class RomModel:
         self.n_velocity_modes = int(n_velocity_modes)
         self.ridge = float(ridge)
         self.container = container
+        self.dem_config = dem_config
         self.arrays: dict[str, np.ndarray] = {}
         self.ranges: dict[str, list[float]] = {}
         self.n_samples = 0
@@ -228,7 +234,7 @@ class RomModel:
                 "n_velocity_modes": self.n_velocity_modes, "ridge": self.ridge,
                 "rate_scale": RATE_SCALE, "ranges": self.ranges, "n_samples": self.n_samples,
                 "container": None if self.container is None else self.container.to_dict(),
-                "validation": self.validation}
+                "validation": self.validation, "dem_config": self.dem_config}
 
     def save(self, path) -> Path:
         """Write the model as one ``.npz`` file (arrays + JSON header)."""
@@ -261,7 +267,8 @@ class RomModel:
         model = cls(Grid.from_dict(header["grid"]), header["n_mass_modes"],
                     header["n_velocity_modes"], header["ridge"],
                     None if header.get("container") is None
-                    else Container.from_dict(header["container"]))
+                    else Container.from_dict(header["container"]),
+                    header.get("dem_config"))
         model.arrays = arrays
         model.ranges = {k: list(v) for k, v in header["ranges"].items()}
         model.n_samples = int(header["n_samples"])
