@@ -290,7 +290,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     model = _fit(grid, Container.from_dict(meta["container"]), samples,
                  np.ones(samples["run"].size, dtype=bool), *best)
     model.validation = validation
-    model.dem_config = meta["dem_config"]
+    model.dem_config = meta.get("dem_config")
     if out is not None:
         model.save(out)
     return model
