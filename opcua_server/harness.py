@@ -118,11 +118,16 @@ class ServerProcess(ManagedProcess):
 
 
 class StockpileProcess(ManagedProcess):
-    """``minetwin stockpile`` connected to ``url`` as the ``surrogate`` user."""
+    """``minetwin stockpile`` connected to ``url`` as the ``surrogate`` user.
+
+    ``model_options``: ``KEY=VALUE`` storage options, each passed as
+    ``--model-option`` (e.g. ``["model=out/rom/model.npz"]`` for ``rom``).
+    """
 
     def __init__(self, workdir: Path, state: dict, url: str, *, model: str = "fifo",
-                 lockstep: bool = False, period: float = 1.0, duration: float | None = None,
-                 rest: bool = False, extra: list[str] | None = None, name: str = "stockpile"):
+                 model_options: list[str] | None = None, lockstep: bool = False,
+                 period: float = 1.0, duration: float | None = None, rest: bool = False,
+                 extra: list[str] | None = None, name: str = "stockpile"):
         workdir = Path(workdir)
         self.summary = workdir / f"{name}.summary.json"
         self.checkpoint = workdir / f"{name}.checkpoint"
@@ -131,6 +136,8 @@ class StockpileProcess(ManagedProcess):
                               "--state-dir", str(state["client_state"]),
                               "--password-file", str(state["password_files"]["surrogate"]),
                               "--checkpoint", str(self.checkpoint), "--summary", str(self.summary)]
+        for option in model_options or []:
+            args += ["--model-option", option]
         args += ["--lockstep", "--period", str(period)] if lockstep else []
         args += ["--duration", str(duration)] if duration is not None else []
         if rest:

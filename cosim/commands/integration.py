@@ -28,6 +28,11 @@ def register(subparsers) -> None:
                         help="simulation seconds per wall second (default 1: real time)")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     parser.add_argument("--model", default="fifo", help="storage model (default fifo)")
+    parser.add_argument("--option", "--model-option", dest="option", action="append", default=[],
+                        metavar="KEY=VALUE",
+                        help="keyword option of the storage model, repeatable, passed to the "
+                             "stockpile as its --model-option (e.g. model=out/rom/model.npz "
+                             "for rom); checked before any process starts")
     parser.add_argument("--config", type=Path, help="server configuration TOML")
     parser.add_argument("--no-monitor", action="store_true", help="do not start the monitor")
     parser.set_defaults(handler=run)
@@ -38,6 +43,7 @@ def run(args) -> int:
     import time
     import urllib.request
 
+    from cosim.commands.stockpile import parse_model_options
     from cosim.errors import ValidationError
     from cosim.storage import STORAGE_MODELS
     from opcua_server.audit import audit
@@ -50,6 +56,8 @@ def run(args) -> int:
         raise ValidationError("speed", "in (0, 1000]", f"got {args.speed}")
     if args.model not in STORAGE_MODELS:
         raise ValidationError("model", f"one of {sorted(STORAGE_MODELS)}", f"got {args.model!r}")
+    storage_options = parse_model_options(args.option, field="option")
+    _check_storage(args.model, storage_options)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     for stale in ("ledger.json", "stockpile.summary.json", "stockpile.checkpoint"):
@@ -61,7 +69,8 @@ def run(args) -> int:
         server = ServerProcess(out, state, speed=args.speed, config=args.config)
         processes.append(server)
         print(f"integration-test: server {server.url}", file=sys.stderr, flush=True)
-        stockpile = StockpileProcess(out, state, server.url, model=args.model, rest=True)
+        stockpile = StockpileProcess(out, state, server.url, model=args.model,
+                                     model_options=args.option, rest=True)
         processes.append(stockpile)
         print(f"integration-test: stockpile REST {stockpile.rest_url}", file=sys.stderr, flush=True)
         if not args.no_monitor:
@@ -88,6 +97,7 @@ def run(args) -> int:
     report = audit(ledger, summary)
     report.update({
         "duration_s": ledger["time_s"], "speed": args.speed, "model": args.model,
+        "storage_options": storage_options, "stockpile_model": summary["model"],
         "max_lag_s": ledger["max_surrogate_lag_s"],
         "client_max_lag_s": summary["max_lag_s"], "lag_p99_s": summary["lag_p99_s"],
         "first_cycle_lag_s": summary["first_cycle_lag_s"],
@@ -105,6 +115,31 @@ def run(args) -> int:
     passed = (report["tracking_ids_lost"] == 0 and report["tracking_ids_duplicated"] == 0
               and report["mass_balance_rel_error"] < 1e-9 and report["unsent_reports"] == 0)
     return 0 if passed else 1
+
+
+def _check_storage(model: str, options: dict) -> None:
+    """Build the stockpile with these storage options, give it one bin and step it.
+
+    A bad option (unknown keyword, missing or wrong model file, value out of
+    range, a model that cannot take a bin) stops the run with a
+    ``ValidationError`` naming the field before any process starts.
+    """
+    import warnings
+
+    from cosim.errors import ValidationError
+    from surrogate.stockpile import StockpileAsset
+
+    try:
+        with warnings.catch_warnings():
+            # a pile of one bin lies outside any ROM's training range: not an error here
+            warnings.simplefilter("ignore")
+            asset = StockpileAsset(model, storage_options=options)
+            asset.receive_bin(1, 500.0, 0.01, 1.0)
+            asset.set_discharge_rate(100.0)
+            asset.step(1.0)
+    except TypeError as exc:
+        raise ValidationError("option", f"keyword options of storage model {model!r}",
+                              str(exc)) from None
 
 
 def _plots(out: Path, ledger: dict, summary: dict) -> list[str]:

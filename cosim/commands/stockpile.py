@@ -65,12 +65,7 @@ def run(args) -> int:
         value = getattr(args, name)
         if not 0 < value <= 3600:
             raise ValidationError(name, "in (0, 3600] s", f"got {value}")
-    storage_options = {}
-    for item in args.model_option:
-        key, sep, value = item.partition("=")
-        if not sep or not key.isidentifier():
-            raise ValidationError("model_option", "KEY=VALUE", f"got {item!r}")
-        storage_options[key] = _number_or_text(value)
+    storage_options = parse_model_options(args.model_option)
     if args.password_file:
         if not args.password_file.is_file():
             raise ValidationError("password_file", "an existing file", f"{args.password_file}")
@@ -108,6 +103,19 @@ def run(args) -> int:
         return await client.run()
 
     return asyncio.run(main())
+
+
+def parse_model_options(items: list[str], field: str = "model_option") -> dict:
+    """``KEY=VALUE`` strings -> storage keyword options (numbers where they parse)."""
+    from cosim.errors import ValidationError
+
+    options = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.isidentifier():
+            raise ValidationError(field, "KEY=VALUE", f"got {item!r}")
+        options[key] = _number_or_text(value)
+    return options
 
 
 def _number_or_text(text: str):
