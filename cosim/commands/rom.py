@@ -91,12 +91,15 @@ def run_evaluate(args) -> int:
     summary = evaluate(model, data, progress=_progress)
     path = write_summary(summary, args.out or data)
     shown = {k: summary[k] for k in ("tracking_error", "tracking_error_dem_noise_floor",
-                                     "velocity_field_rel_error", "wall_s_per_simulated_s",
+                                     "velocity_field_rel_error",
+                                     "velocity_field_rel_error_dem_noise_floor",
+                                     "wall_s_per_simulated_s",
                                      "speedup_vs_dem", "grade_error", "hardness_error",
                                      "feed_prediction_error", "targets")}
     shown["scenarios"] = {name: {k: s[k] for k in ("tracking_error",
                                                     "tracking_error_dem_noise_floor",
                                                     "velocity_field_rel_error",
+                                                    "velocity_field_rel_error_dem_noise_floor",
                                                     "speedup_vs_dem", "targets")}
                           for name, s in summary["scenarios"].items()}
     print(json.dumps(shown, indent=1))

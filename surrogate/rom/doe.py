@@ -191,6 +191,49 @@ def build_pile(cfg, fill: float, seed: int, progress=None):
     return dem, feed
 
 
+ESCAPE_SPEED_FACTOR = 2.0
+"""A disk faster than this multiple of the free-fall speed from the inlet
+[-] marks a blown-up run: gravity from the inlet height is the largest
+energy source of the stockpile, and a collision with restitution e = 0.3
+can at most raise a disk's speed by a factor 1 + e."""
+
+BLOWN_UP_OVERLAP_RATIO = 0.5
+"""Overlap over the smaller diameter [-] that marks a blown-up run (the
+stable step keeps overlaps near 1-3 % at the base of the training pile)."""
+
+
+def instability(dem) -> str | None:
+    """Why ``dem`` has blown up (an explicit-integration instability of a
+    forced time step), or None: a disk outside the container (beyond the
+    floor ends or below the floor by more than one largest diameter), a
+    disk faster than ``ESCAPE_SPEED_FACTOR`` times the free-fall speed
+    sqrt(v_inlet^2 + 2 g h_inlet) [m/s], or an overlap above
+    ``BLOWN_UP_OVERLAP_RATIO``. Vectorised over the disks."""
+    from surrogate.dem.config import GRAVITY
+
+    if dem.n == 0:
+        return None
+    cfg = dem.cfg
+    margin = cfg.diameter_max
+    half = cfg.floor_width / 2.0
+    x, y = dem.pos[:, 0], dem.pos[:, 1]
+    outside = (np.abs(x) > half + margin) | (y < -margin)
+    if outside.any():
+        k = int(np.argmax(outside))
+        return (f"{int(outside.sum())} disk(s) left the container "
+                f"(one at x = {x[k]:.1f} m, y = {y[k]:.1f} m)")
+    inlet_height = max(float(h) for _, h in cfg.inlets)
+    free_fall = np.sqrt(cfg.inlet_velocity ** 2 + 2.0 * GRAVITY * inlet_height)
+    speed = float(np.sqrt((dem.vel ** 2).sum(axis=1)).max())
+    if speed > ESCAPE_SPEED_FACTOR * free_fall:
+        return (f"disk speed {speed:.3g} m/s above {ESCAPE_SPEED_FACTOR:g} x the free-fall "
+                f"speed from the inlet ({free_fall:.3g} m/s)")
+    overlap = dem.max_overlap_ratio()
+    if overlap > BLOWN_UP_OVERLAP_RATIO:
+        return f"overlap {overlap:.2f} of a diameter (limit {BLOWN_UP_OVERLAP_RATIO:g})"
+    return None
+
+
 VELOCITY_WINDOW = 5.0
 """Span [s] of the displacements that define a velocity sample (1 s
 displacements are dominated by contact rattling and intermittent surface
