@@ -4,15 +4,27 @@ Starts ``serve-800xa`` (mock 800xA), ``stockpile`` (OPC UA client + REST)
 and ``monitor`` as separate processes on 127.0.0.1, runs for ``--duration``
 simulated seconds, freezes the plant clock, lets the stockpile catch up,
 stops everything and writes ``DIR/report.json`` and PNG plots.
+
+``--model NAME`` picks the stockpile's storage model and each ``--option
+KEY=VALUE`` is passed to it (``minetwin stockpile --model-option``), e.g.
+``--model rom --option model=out/rom/model.npz``; the options are tried on a
+stockpile in this process first, so a bad one fails before anything starts.
+The report records the model, its options, the model the stockpile process
+says it ran, and the warnings it printed (a ROM extrapolating outside its
+training ranges says so).
 """
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
 MAX_LAG_OK_S = 1.0
 """Largest lag [s of simulation] behind the server's clock still called keeping up."""
+
+WARNING_LINE = re.compile(r"^\S+:\d+: (\w+): (.+)$")
+"""A line of Python's default warning format: ``file:line: Category: message``."""
 
 
 def register(subparsers) -> None:
@@ -98,6 +110,7 @@ def run(args) -> int:
     report.update({
         "duration_s": ledger["time_s"], "speed": args.speed, "model": args.model,
         "storage_options": storage_options, "stockpile_model": summary["model"],
+        "stockpile_warnings": _warnings(out / "stockpile.log"),
         "max_lag_s": ledger["max_surrogate_lag_s"],
         "client_max_lag_s": summary["max_lag_s"], "lag_p99_s": summary["lag_p99_s"],
         "first_cycle_lag_s": summary["first_cycle_lag_s"],
@@ -140,6 +153,16 @@ def _check_storage(model: str, options: dict) -> None:
     except TypeError as exc:
         raise ValidationError("option", f"keyword options of storage model {model!r}",
                               str(exc)) from None
+
+
+def _warnings(log: Path) -> list[str]:
+    """The distinct warnings (``Category: message``) a process printed, in order."""
+    found = []
+    for line in log.read_text(errors="replace").splitlines():
+        match = WARNING_LINE.match(line)
+        if match and (text := f"{match[1]}: {match[2]}") not in found:
+            found.append(text)
+    return found
 
 
 def _plots(out: Path, ledger: dict, summary: dict) -> list[str]:
