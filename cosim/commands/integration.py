@@ -72,7 +72,9 @@ def run(args) -> int:
     _check_storage(args.model, storage_options)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
-    for stale in ("ledger.json", "stockpile.summary.json", "stockpile.checkpoint"):
+    # a previous run in DIR: its logs would be appended to and its state resumed
+    for stale in ("ledger.json", "stockpile.summary.json", "stockpile.checkpoint",
+                  "server.log", "stockpile.log", "monitor.log"):
         (out / stale).unlink(missing_ok=True)
     state = prepare_state(out / "state")
     processes = []
