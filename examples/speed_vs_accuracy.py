@@ -1,22 +1,35 @@
 """Speed against accuracy of the stockpile fidelity ladder, and the pile pictures.
 
 Issue 10 / paper sections "Integration test" and "Predicting the properties
-of the mill feed": on the held-out scenario (300 s, rates and pile state not
-in the ROM's training design) every storage model -- FIFO, perfect mixing,
-the ROM at several POD mode counts, the DEM at two time steps -- is
-scored by its tracking error (mean total-variation distance of the 30 s
-outflow compositions per 15 t lot) against a fine-step DEM (dt = stable_dt /
-2) and placed against its wall seconds per simulated second (log axis).
+of the mill feed": on a held-out scenario (300 s, rates and pile state not
+in the ROM's training design) every storage model is scored by its tracking
+error (mean total-variation distance of the 30 s outflow compositions per
+15 t lot) against a fine-step DEM (dt = stable_dt / 4) and placed against
+its wall seconds per simulated second (log axis):
+
+- FIFO and perfect mixing;
+- the ROM at several POD mode counts, in two families: surface layer by
+  resolved DEM of the falling and spreading particles (``surface="dem"``,
+  the default) and by the sandpile rule (``surface="rule"``);
+- the DEM at the time-step ladder ``DT_FACTORS`` x stable_dt (forced steps
+  above 1). A step that blows the DEM up (``surrogate.rom.doe.instability``:
+  a disk leaving the container, faster than twice the free-fall speed, or
+  overlapping by half a diameter) is stopped there and drawn as an X at the
+  cost it reached, labelled "unstable".
+
 The DEM's chaos floor (two DEM runs 1e-6 m apart) is drawn as a line.
 
 Writes into --out: ``speed_vs_accuracy.png``, ``speed_vs_accuracy.json``
 (the points) and ``pile_fields.png`` (velocity, grade and hardness fields of
-the DEM and the ROM at the middle of the held-out run, the paper's figure
-"pileDistribution").
+the DEM and the default ROM at the middle of the held-out run, the paper's
+figure "pileDistribution").
 
-The chart uses the 200 kg/s held-out scenario (``heldout``); the data build
-also runs the paper-throughput held-out scenarios that ``minetwin rom
-evaluate`` scores (``surrogate.rom.doe.HELDOUT_SCENARIOS``).
+``--scenario`` picks the held-out scenario (default ``heldout``, 200 kg/s;
+``heldout_q1200`` and ``heldout_q1500`` run at the paper's throughput, where
+the DEM's chaos floor is lower and the chart separates the models better).
+The data build runs every held-out scenario that ``minetwin rom evaluate``
+scores (``surrogate.rom.doe.HELDOUT_SCENARIOS``) and the DEM ladder of the
+chosen one.
 
 Run (from the repository root; the first run builds the DEM data, about
 10-20 minutes on 2 cores, later runs reuse it)::
@@ -34,17 +47,125 @@ from pathlib import Path
 
 import numpy as np
 
-DT_FACTORS = (0.5, 2.0)
-"""DEM time steps run besides the default, as multiples of stable_dt; 0.5 is the
-reference. (4 stable_dt was tried: the run slowed to a crawl, the mark of an
-unstable step, so the ladder stops at 2.)"""
+DT_FACTORS = (0.25, 0.5, 2.0, 4.0, 6.0, 8.0)
+"""DEM time steps run besides the default, as multiples of stable_dt; the
+smallest is the reference. Above 1 the steps are forced (a stability study):
+on the training stockpile 4 stable_dt still runs (the pile heats up: ten times
+the kinetic energy of the stable step), 6 and 8 blow up within seconds
+(disks fly out of the container), and the guard stops and marks them."""
 
 MODE_COUNTS = (2, 4, 8, 16)
 """POD mode counts (mass and velocity) of the ROM points."""
 
+SURFACES = ("dem", "rule")
+"""ROM surface-layer families on the chart (``RomStorage(surface=...)``)."""
+
 
 def progress(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
+
+
+def rom_models(ev, data):
+    """``(label, model, is_default)`` for each mode count and the
+    cross-validated default model (``evaluate.train``)."""
+    default = ev.train(data)
+    chosen = (default.n_mass_modes, default.n_velocity_modes)
+    models = []
+    for modes in MODE_COUNTS:
+        if (modes, modes) == chosen:
+            models.append((f"{modes} modes (default)", default, True))
+        else:
+            models.append((f"{modes} modes", ev.train(data, n_mass_modes=modes,
+                                                      n_velocity_modes=modes), False))
+    if chosen not in [(m, m) for m in MODE_COUNTS]:
+        models.append((f"{chosen[0]}/{chosen[1]} modes (default)", default, True))
+    return models
+
+
+def plot_ladder(result: dict, path) -> None:
+    """The speed-vs-accuracy chart of ``result`` (the ``speed_vs_accuracy.json``
+    content) as a PNG at ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from surrogate.rom import doe
+
+    points, floor = result["points"], result["dem_noise_floor"]
+    fine_wall = result["reference_wall_s_per_simulated_s"]
+    reference_factor = result["reference_dt_factor"]
+    scenario = next(s for s in doe.HELDOUT_SCENARIOS if s.name == result["scenario"])
+    colours = {"fifo": "tab:red", "mixing": "tab:orange", "rom_dem": "tab:blue",
+               "rom_rule": "tab:purple", "dem": "tab:green"}
+    top = 1.08  # unstable runs have no score: their X sits above the scale
+    fig, ax = plt.subplots(figsize=(9, 6))
+    for p in points:
+        if p["kind"] in ("fifo", "mixing"):
+            ax.scatter(p["wall_s_per_simulated_s"], p["tracking_error"],
+                       color=colours[p["kind"]], s=40, zorder=3)
+            ax.annotate(p["label"], (p["wall_s_per_simulated_s"], p["tracking_error"]),
+                        textcoords="offset points", xytext=(7, -3), fontsize=8)
+    # ROM families: one line each in mode order; the points of a family lie too
+    # close for a label each, so one list per family (modes: error) stands beside it
+    for kind, marker, side in (("rom_dem", "o", 1), ("rom_rule", "s", -1)):
+        family = sorted((p for p in points if p["kind"] == kind), key=lambda p: p["modes"])
+        if not family:
+            continue
+        x = [p["wall_s_per_simulated_s"] for p in family]
+        y = [p["tracking_error"] for p in family]
+        ax.plot(x, y, color=colours[kind], marker=marker, lw=0.8, ms=6, zorder=3)
+        rows = [f"{'/'.join(str(m) for m in dict.fromkeys(p['modes']))}"
+                f"{'*' if 'default' in p['label'] else ''}: {p['tracking_error']:.2f}"
+                for p in family]
+        anchor = (max(x) if side > 0 else min(x), float(np.mean(y)))
+        ax.annotate("modes: error\n" + "\n".join(rows), anchor, textcoords="offset points",
+                    xytext=(10 * side, 0), ha="left" if side > 0 else "right", va="center",
+                    fontsize=7, color=colours[kind])
+    stable = [p for p in points if p["kind"] == "dem" and not p.get("unstable")]
+    for k, p in enumerate(sorted(stable, key=lambda p: p["wall_s_per_simulated_s"])):
+        ax.scatter(p["wall_s_per_simulated_s"], p["tracking_error"], color=colours["dem"],
+                   s=40, zorder=3)
+        right = k % 2 == 0  # alternate sides so neighbouring labels do not collide
+        ax.annotate(f"dt = {p['dt_factor']:g} stable_dt",
+                    (p["wall_s_per_simulated_s"], p["tracking_error"]),
+                    textcoords="offset points", xytext=(7 if right else -7, -3),
+                    ha="left" if right else "right", fontsize=7)
+    unstable = [p for p in points if p.get("unstable")]
+    for k, p in enumerate(sorted(unstable, key=lambda p: p["wall_s_per_simulated_s"])):
+        ax.scatter(p["wall_s_per_simulated_s"], top, color=colours["dem"], marker="x", s=60,
+                   zorder=3)
+        # labels stacked below the row of Xs, each with a leader to its X
+        ax.annotate(f"dt = {p['dt_factor']:g} stable_dt: unstable at "
+                    f"{p['unstable_at_s']:.3g} s", (p["wall_s_per_simulated_s"], top),
+                    textcoords="offset points", xytext=(-20, -14 * (k + 1)), ha="right",
+                    fontsize=7, arrowprops={"arrowstyle": "-", "lw": 0.5, "color": "grey"})
+    ax.scatter(fine_wall, 0.0, color=colours["dem"], marker="*", s=90, zorder=3,
+               label=f"reference: DEM dt = {reference_factor:g} stable_dt")
+    ax.scatter([], [], color=colours["rom_dem"],
+               label="ROM, surface layer by DEM (POD modes, * cross-validated)")
+    ax.scatter([], [], color=colours["rom_rule"], marker="s",
+               label="ROM, surface layer by sandpile rule")
+    ax.scatter([], [], color=colours["dem"], label="DEM at a time step (x stable_dt)")
+    ax.scatter([], [], color=colours["dem"], marker="x",
+               label="DEM blown up (forced step): cost reached")
+    ax.axhline(floor, color="grey", ls="--", lw=1,
+               label=f"DEM chaos floor (1e-6 m perturbation): {floor:.2f}")
+    ax.axhline(0.10, color="black", ls=":", lw=1, label="target 0.10")
+    ax.axhline(1.0, color="grey", ls="-", lw=0.5)
+    ax.axvline(1.0, color="grey", ls="-", lw=0.5)
+    ax.set_xscale("log")
+    ax.set_ylim(-0.02, top + 0.04)
+    ax.set_xlabel("wall seconds per simulated second (one core; 1 = real time)")
+    ax.set_ylabel("tracking error vs fine-step DEM (mean TV distance, 30 s windows)")
+    ax.set_title("Stockpile fidelity ladder: what each second of compute buys\n"
+                 f"(held-out {scenario.duration:g} s, {scenario.fill / 1e3:g} t pile, "
+                 f"{scenario.inflow_rate:g} kg/s in, {scenario.discharge_rate:g} kg/s out)",
+                 fontsize=10)
+    ax.legend(loc="center right", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
 
 
 def main(argv=None) -> int:
@@ -53,7 +174,24 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default="examples/out", help="output directory")
     parser.add_argument("--quick", action="store_true", help="small training design")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--scenario", default="heldout",
+                        help="held-out scenario of the chart (heldout, heldout_q1200, "
+                             "heldout_q1500)")
+    parser.add_argument("--workers", type=int, default=2,
+                        help="processes running independent DEM runs (2)")
     args = parser.parse_args(argv)
+
+    from surrogate.rom import doe
+
+    names = [s.name for s in doe.HELDOUT_SCENARIOS]
+    if args.scenario not in names:
+        print(f"speed_vs_accuracy: --scenario: must be one of {names} (got {args.scenario!r})",
+              file=sys.stderr)
+        return 2
+    if args.workers < 1:
+        print(f"speed_vs_accuracy: --workers: must be >= 1 (got {args.workers})",
+              file=sys.stderr)
+        return 2
 
     import matplotlib
 
@@ -66,18 +204,24 @@ def main(argv=None) -> int:
     data, out = Path(args.data), Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     ev.build_data(data, quick=args.quick, seed=args.seed, progress=progress,
-                  reference_dt_factors=DT_FACTORS)
-    heldout = data / "heldout"
-    fine = ev.load_run(heldout / "dem_dt0.5.npz")
+                  reference_dt_factors=DT_FACTORS, workers=args.workers,
+                  dt_ladder_scenarios=(args.scenario,))
+    heldout = data / args.scenario
+    reference_factor = min(DT_FACTORS)
+    fine = ev.load_run(heldout / f"dem_dt{reference_factor:g}.npz")
+    if int(fine.get("unstable", 0)):
+        print(f"speed_vs_accuracy: the reference DEM (dt = {reference_factor:g} stable_dt) "
+              f"blew up: {fine['unstable_reason']}", file=sys.stderr)
+        return 1
     reference = ev.outflow_of(fine)
     t0 = float(fine["t0"])
     t1 = t0 + ev.scenario_duration(heldout)
     points = []
 
-    def add(label, kind, outflow, wall):
+    def add(label, kind, outflow, wall, **extra):
         points.append({"label": label, "kind": kind,
                        "tracking_error": metrics.tracking_error(outflow, reference, t0, t1),
-                       "wall_s_per_simulated_s": wall / (t1 - t0)})
+                       "wall_s_per_simulated_s": wall / (t1 - t0), **extra})
         progress(f"{label}: {points[-1]}")
 
     for name in ("fifo", "mixing"):
@@ -90,58 +234,47 @@ def main(argv=None) -> int:
         if k == middle:
             captured.update(storage.fields(), time=time)
 
-    default = ev.train(data)
-    for modes in MODE_COUNTS:
-        is_default = modes == default.n_mass_modes == default.n_velocity_modes
-        model = default if is_default else ev.train(data, n_mass_modes=modes,
-                                                    n_velocity_modes=modes)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            ev.run_storage("rom", heldout, model)  # compile and warm up the kernels
-            outflow, wall, _ = ev.run_storage("rom", heldout, model,
-                                              on_step=capture if is_default else None)
-        add(f"ROM {modes} modes" + (" (default)" if is_default else ""), "rom", outflow, wall)
-    if not captured:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            ev.run_storage("rom", heldout, default, on_step=capture)
-    model = default
-    for factor, name in [(1.0, "dem")] + [(f, f"dem_dt{f:g}") for f in DT_FACTORS if f > 1]:
-        run = ev.load_run(heldout / f"{name}.npz")
-        add(f"DEM dt = {factor:g} stable_dt", "dem", ev.outflow_of(run), float(run["wall_s"]))
+    models = rom_models(ev, data)
+    for surface in SURFACES:
+        for label, model, is_default in models:
+            options = {"surface": surface}
+            keep_fields = is_default and surface == SURFACES[0]
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                ev.run_storage("rom", heldout, model, options=options)  # compile, warm up
+                outflow, wall, _ = ev.run_storage("rom", heldout, model, options=options,
+                                                  on_step=capture if keep_fields else None)
+            add(f"ROM {surface} {label}", f"rom_{surface}", outflow, wall,
+                modes=[model.n_mass_modes, model.n_velocity_modes], surface=surface)
+    for factor in sorted({1.0, *DT_FACTORS} - {reference_factor}):
+        run = ev.load_run(heldout / ("dem.npz" if factor == 1.0 else f"dem_dt{factor:g}.npz"))
+        label = f"DEM dt = {factor:g} stable_dt"
+        if int(run.get("unstable", 0)):
+            reached = float(run["unstable_at"])
+            points.append({"label": f"{label}: unstable at {reached:.2g} s", "kind": "dem",
+                           "dt_factor": factor, "unstable": True,
+                           "unstable_at_s": reached, "why": str(run["unstable_reason"]),
+                           "tracking_error": None,
+                           "wall_s_per_simulated_s": float(run["wall_s"]) / max(reached, 1e-9)})
+            progress(f"{label}: {points[-1]}")
+        else:
+            add(label, "dem", ev.outflow_of(run), float(run["wall_s"]), dt_factor=factor)
     dem = ev.load_run(heldout / "dem.npz")
     floor = metrics.tracking_error(ev.outflow_of(ev.load_run(heldout / "dem_perturbed.npz")),
                                    ev.outflow_of(dem), t0, t1)
     fine_wall = float(fine["wall_s"]) / (t1 - t0)
-    result = {"reference": f"DEM dt = 0.5 stable_dt ({fine_wall:.3g} wall s per simulated s)",
+    result = {"scenario": args.scenario,
+              "reference": f"DEM dt = {reference_factor:g} stable_dt "
+                           f"({fine_wall:.3g} wall s per simulated s)",
+              "reference_dt_factor": reference_factor,
+              "reference_wall_s_per_simulated_s": fine_wall,
               "dem_noise_floor": floor, "points": points}
     (out / "speed_vs_accuracy.json").write_text(json.dumps(result, indent=1))
     print(json.dumps(result, indent=1))
 
-    colours = {"fifo": "tab:red", "mixing": "tab:orange", "rom": "tab:blue", "dem": "tab:green"}
-    fig, ax = plt.subplots(figsize=(7.5, 5))
-    for k, p in enumerate(points):
-        ax.scatter(p["wall_s_per_simulated_s"], p["tracking_error"], color=colours[p["kind"]],
-                   s=40, zorder=3)
-        right = k % 2 == 0  # alternate sides so neighbouring labels do not collide
-        ax.annotate(p["label"], (p["wall_s_per_simulated_s"], p["tracking_error"]),
-                    textcoords="offset points", xytext=(7 if right else -7, -3),
-                    ha="left" if right else "right", fontsize=8)
-    ax.axhline(floor, color="grey", ls="--", lw=1,
-               label=f"DEM chaos floor (1e-6 m perturbation): {floor:.2f}")
-    ax.axhline(0.10, color="black", ls=":", lw=1, label="target 0.10")
-    ax.axvline(1.0, color="grey", ls="-", lw=0.5)
-    ax.set_xscale("log")
-    ax.set_ylim(0, 1)
-    ax.set_xlabel("wall seconds per simulated second (one core; 1 = real time)")
-    ax.set_ylabel("tracking error vs fine-step DEM (mean TV distance, 30 s windows)")
-    ax.set_title("Stockpile fidelity ladder: what each second of compute buys")
-    ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "speed_vs_accuracy.png", dpi=130)
-    plt.close(fig)
+    plot_ladder(result, out / "speed_vs_accuracy.png")
 
-    grid = model.grid
+    grid = models[0][1].grid
     extent = (grid.x_min, grid.x_max, grid.y_min, grid.y_max)
     k = middle
     rows = {"DEM": {"mass": dem["field_mass"][k], "velocity": dem["field_velocity"][k],
@@ -167,7 +300,7 @@ def main(argv=None) -> int:
             fig.colorbar(im, ax=ax, shrink=0.7)
     axes[1, 0].set_xlabel("x [m]")
     axes[1, 0].set_ylabel("y [m]")
-    fig.suptitle(f"Pile fields at t = {k} s of the held-out run "
+    fig.suptitle(f"Pile fields at t = {k} s of the held-out run {args.scenario} "
                  "(the funnel zone drains in the near future)")
     fig.tight_layout()
     fig.savefig(out / "pile_fields.png", dpi=120)
