@@ -59,6 +59,25 @@ P_KN, P_KT, P_CN, P_CT, P_MU, P_MUR, P_KR, P_COH, P_G = range(9)
 N_PARAMS = 9
 
 
+def contact_params(cfg, gravity: float) -> np.ndarray:
+    """The ``params`` vector of a ``DemConfig`` (contact law above) and ``gravity`` [m/s^2]."""
+    zeta = cfg.damping_ratio
+    kn = cfg.normal_stiffness
+    kt = cfg.tangential_stiffness
+    mur = cfg.rolling_resistance
+    params = np.zeros(N_PARAMS)
+    params[P_KN] = kn
+    params[P_KT] = kt
+    params[P_CN] = 2.0 * zeta * math.sqrt(kn)
+    params[P_CT] = 2.0 * zeta * math.sqrt(kt)
+    params[P_MU] = cfg.friction
+    params[P_MUR] = mur
+    params[P_KR] = 2.25 * kn * mur * mur
+    params[P_COH] = cfg.cohesion
+    params[P_G] = gravity
+    return params
+
+
 @njit(cache=True)
 def _cell_grid(pos, cell_size):
     """Counting sort of disks into square cells; returns the grid description."""

@@ -28,9 +28,15 @@ One step of ``dt`` [s] is split into substeps of at most ``max_step`` [s]:
    offsets weighted by ``FUNNEL_ASPECT`` (the column above the opening
    drains first, material beside it on the floor is the dead zone).
 
-Incoming particles (``receive``) are placed by the surface layer
-(``surrogate.rom.surface``: fall from the inlet, angle-of-repose spreading)
-and join the bulk at once.
+Incoming particles (``receive``) go to the surface layer. With
+``surface="dem"`` (default) they are released at the inlet, fall and impact
+on the bulk by resolved DEM (``surrogate.rom.surface_dem``; paper: "resolved
+DEM is used" for the particles impacting the pile); after the impact they
+roll on by the angle-of-repose rule from where they landed
+(``surrogate.rom.surface.deposit``) and join the bulk. In each substep the
+surface layer runs first, over the bulk as it stands. With
+``surface="rule"`` they are placed at once by the sandpile rule alone (fall
+under the inlet, angle-of-repose spreading) and join the bulk at once.
 
 The particle store holds positions in the DEM plane: ``position[:, 0]`` = x
 (horizontal), ``position[:, 1]`` = y (up) [m], ``position[:, 2]`` = 0;
@@ -66,6 +72,15 @@ fallback_config : DemConfig or dict or str, optional
     TOML path); default ``surrogate.rom.doe.training_config()``, the
     stockpile the ROM was trained on. Its floor must span the model's
     container.
+surface : {"dem", "rule"}
+    Surface layer (default "dem", see above).
+surface_config : DemConfig or dict, optional
+    The DEM of the surface layer (contact law, particle density and sizes,
+    inlet height); default the model's training DEM (``RomModel.dem_config``),
+    else ``surrogate.rom.doe.training_config()``.
+surface_dt_safety_factor : float, optional
+    Surface-layer time step = contact time / this (default: the surface
+    DEM's own ``dt_safety_factor``; see ``surrogate.rom.surface_dem``).
 """
 
 from __future__ import annotations
@@ -85,6 +100,7 @@ from surrogate.rom.handover import drop_heights
 from surrogate.rom.model import OutOfTrainingRange, RomModel
 from surrogate.rom.surface import (column_width, deposit, feeder_take, settle,
                                    surface_heights)
+from surrogate.rom.surface_dem import SurfaceDem
 
 RANGE_CHECK_INTERVAL = 10.0
 """Seconds between checks of the ROM inputs against the training ranges."""
@@ -95,6 +111,23 @@ FUNNEL_ASPECT = 3.0
 FALLBACKS = (None, "dem")
 """Accepted values of ``RomStorage(fallback=...)``."""
 
+SURFACES = ("dem", "rule")
+"""Accepted values of ``RomStorage(surface=...)``."""
+
+
+def _dem_config(config):
+    """A ``DemConfig`` from a config, a dict of its fields or a TOML path (None: the
+    training stockpile, ``doe.training_config()``)."""
+    from surrogate.dem import DemConfig
+
+    if config is None:
+        return doe.training_config()
+    if isinstance(config, dict):
+        return DemConfig.from_dict(config)
+    if isinstance(config, (str, Path)):
+        return DemConfig.from_toml(str(config))
+    return config
+
 
 class RomStorage(StorageModel):
     """Reduced-order stockpile model behind the storage interface (see module docstring)."""
@@ -104,10 +137,17 @@ class RomStorage(StorageModel):
 
     def __init__(self, model=None, *, update_interval: float = 1.0, max_step: float = 1.0,
                  inflow_window: float = 30.0, rng: np.random.Generator | None = None,
-                 fallback: str | None = None, fallback_config=None):
+                 fallback: str | None = None, fallback_config=None, surface: str = "dem",
+                 surface_config=None, surface_dt_safety_factor: float | None = None):
         super().__init__()
         if fallback not in FALLBACKS:
             raise ValidationError("fallback", f"one of {FALLBACKS}", f"got {fallback!r}")
+        if surface not in SURFACES:
+            raise ValidationError("surface", f"one of {SURFACES}", f"got {surface!r}")
+        self.surface = surface
+        self.surface_config = surface_config
+        self.surface_dt_safety_factor = surface_dt_safety_factor
+        self.surface_dem: SurfaceDem | None = None
         self.fallback = fallback
         self.fallback_config = fallback_config
         self.dem_storage = None
@@ -148,6 +188,10 @@ class RomStorage(StorageModel):
             raise ValidationError("model", "a trained ROM with its container geometry")
         self.model = model
         self.container = model.container
+        if self.surface == "dem":
+            self.surface_dem = SurfaceDem(_dem_config(self.surface_config or model.dem_config),
+                                          model.container, self.surface_dt_safety_factor,
+                                          rng=self.rng)
         return self
 
     def _need_model(self) -> RomModel:
@@ -158,18 +202,31 @@ class RomStorage(StorageModel):
 
     # ------------------------------------------------------------ inflow
     def receive(self, ids, t: float) -> None:
-        """Particles arriving at the inlet settle by the surface layer and join the bulk."""
+        """Particles arriving at the inlet enter the surface layer (module docstring)."""
         if self.dem_storage is not None:
             return self.dem_storage.receive(ids, t)
         self._need_model()
         ids = np.asarray(ids, dtype=np.uint64)
         if ids.size == 0:
             return
-        mass = self.particles.mass[self.particles.slots(ids)].copy()
+        slots = self.particles.slots(ids)
+        mass = self.particles.mass[slots].copy()
         width = self._column_width(mass)
-        heights = surface_heights(self.container, width, self._pos, self._mass)
-        self._append(ids, mass, deposit(self.container, width, heights, mass, self.rng))
+        if self.surface_dem is not None:
+            self.particles.position[slots, :2] = self.surface_dem.add(ids, mass)
+            self.particles.position[slots, 2] = 0.0
+        else:
+            heights = surface_heights(self.container, width, self._pos, self._mass)
+            self._append(ids, mass, deposit(self.container, width, heights, mass, self.rng))
         self._receipts.append((float(t), float(mass.sum())))
+
+    def _land(self, ids, mass, position) -> None:
+        """Particles whose impact the surface DEM resolved roll on from where it
+        left them by the angle-of-repose rule, then join the bulk."""
+        if ids.size:
+            heights = surface_heights(self.container, self._width, self._pos, self._mass)
+            self._append(ids, mass, deposit(self.container, self._width, heights, mass,
+                                            self.rng, landing_x=position[:, 0]))
 
     def place(self, ids, position) -> None:
         """Particles already resting in the pile at ``position`` (N, 2) [m] (initial state)."""
@@ -288,9 +345,11 @@ class RomStorage(StorageModel):
         h = dt / substeps
         leaving = []
         for k in range(substeps):
+            if self.surface_dem is not None:
+                self._land(*self.surface_dem.advance(h, self._width, self._pos, self._mass))
             if self._ids.size == 0:
                 self._credit_kg = 0.0
-                break
+                continue
             self._move(self._refresh_field(t + k * h, rate), h, self._pos, self._mass)
             self._credit_kg += rate * h
             taken, self._credit_kg = self._take(self._pos, self._mass, self._credit_kg)
@@ -304,7 +363,8 @@ class RomStorage(StorageModel):
         return np.concatenate(leaving) if leaving else np.empty(0, dtype=np.uint64)
 
     def _write_back(self) -> None:
-        """Positions and field velocities into the particle store (sensors, monitor)."""
+        """Positions and velocities into the particle store (sensors, monitor): the
+        field's velocity for the bulk, the DEM's for the surface layer."""
         slots = self.particles.slots(self._ids)
         self.particles.position[slots, :2] = self._pos
         self.particles.position[slots, 2] = 0.0
@@ -312,19 +372,19 @@ class RomStorage(StorageModel):
             g = self.model.grid
             self.particles.velocity[slots, :2] = interpolate(self._field, g.x_min, g.y_min,
                                                              g.dx, g.dy, self._pos)
+        free = self.surface_dem
+        if free is not None and len(free):
+            slots = self.particles.slots(free.ids)
+            self.particles.position[slots, :2] = free.pos
+            self.particles.position[slots, 2] = 0.0
+            self.particles.velocity[slots, :2] = free.vel
 
     def _hand_over_to_dem(self, t: float) -> None:
         """Continue as DEM from time ``t`` (see ``fallback`` in the module docstring)."""
-        from surrogate.dem import Dem, DemConfig
+        from surrogate.dem import Dem
         from surrogate.dem_storage import DemStorage
 
-        config = self.fallback_config
-        if config is None:
-            config = doe.training_config()
-        elif isinstance(config, dict):
-            config = DemConfig.from_dict(config)
-        elif isinstance(config, (str, Path)):
-            config = DemConfig.from_toml(str(config))
+        config = _dem_config(self.fallback_config)
         c = self.container
         half = 0.5 * config.floor_width
         # the DEM's floor is y = 0 centred on x = 0: the ROM's container must lie on it
@@ -335,6 +395,10 @@ class RomStorage(StorageModel):
                                   f"{c.floor:g} m")
         dem = Dem(config, seed=int(self.rng.integers(2 ** 31)))
         dem.time = float(t)
+        free = self.surface_dem
+        if free is not None and len(free):  # the surface layer goes over too (lifted to rest)
+            self._append(free.ids, free.mass, free.pos)
+            free.remove(free.ids)
         slots = self.particles.slots(self._ids)
         tracking = (self.particles.attribute("tracking_id")[slots]
                     if "tracking_id" in self.particles.attribute_names else self._ids)
@@ -357,19 +421,25 @@ class RomStorage(StorageModel):
         """Held ids, nearest to the outlet first (the feeder's current order)."""
         if self.dem_storage is not None:
             return self.dem_storage.held_ids()
-        return self._ids[self._nearest_first(self._pos, self._ids.size)]
+        bulk = self._ids[self._nearest_first(self._pos, self._ids.size)]
+        if self.surface_dem is not None and len(self.surface_dem):
+            return np.concatenate((bulk, self.surface_dem.ids))  # still on their way down
+        return bulk
 
     def _forget(self, ids) -> None:
         keep = ~np.isin(self._ids, ids)
         self._ids, self._mass, self._pos = self._ids[keep], self._mass[keep], self._pos[keep]
+        if self.surface_dem is not None:
+            self.surface_dem.remove(ids)
 
     def predict(self, horizon: float, discharge_rate: float):
         """Feed for the next ``horizon`` s: ``(ids, mass_kg)``.
 
         The held particles are advected forward with the current field at a
         constant ``discharge_rate`` and no inflow (the funnel zone drains);
-        the ones the outlet takes, then the nearest remaining ones, are
-        credited until rate * horizon (plus the current credit) is covered.
+        the ones the outlet takes, then the nearest remaining ones, then the
+        surface layer's particles still falling, are credited until
+        rate * horizon (plus the current credit) is covered.
         """
         if self.dem_storage is not None:
             return self.dem_storage.predict(horizon, discharge_rate)
@@ -393,11 +463,14 @@ class RomStorage(StorageModel):
                 keep[taken] = False
                 position, mass, index = position[keep], mass[keep], index[keep]
         order = np.concatenate(taken_all + [index[self._nearest_first(position, index.size)]])
-        masses = self._mass[order]
+        ids, masses = self._ids[order], self._mass[order]
+        free = self.surface_dem
+        if free is not None and len(free):  # the surface layer comes last: it has yet to land
+            ids, masses = np.concatenate((ids, free.ids)), np.concatenate((masses, free.mass))
         budget = self._credit_kg + rate * horizon
         share = np.clip(budget - (np.cumsum(masses) - masses), 0.0, masses)
         keep = share > 0
-        return self._ids[order][keep], share[keep]
+        return ids[keep], share[keep]
 
     def fields(self) -> dict[str, np.ndarray]:
         """Fields on the model grid: ``mass`` [kg/cell], ``velocity`` [m/s] (ny, nx, 2)
@@ -413,6 +486,11 @@ class RomStorage(StorageModel):
                                  for k in range(2)], axis=-1)
         else:
             ids, position, mass = self._ids, self._pos, self._mass
+            free = self.surface_dem
+            if free is not None and len(free):
+                ids, position, mass = (np.concatenate((ids, free.ids)),
+                                       np.concatenate((position, free.pos)),
+                                       np.concatenate((mass, free.mass)))
             velocity = self._field if self._field is not None else np.zeros(grid.shape + (2,))
         slots = self.particles.slots(ids)
         return {"mass": mass_field(grid, position, mass), "velocity": velocity,

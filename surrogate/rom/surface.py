@@ -14,7 +14,9 @@ Equations:
   rho_A the areal bulk density [kg/m^2] (``Container.areal_density``).
 - A particle of mass m falls vertically from the inlet (column of
   ``inlet_x`` plus a uniform jitter of +-1 column, the spread of the falling
-  stream) and lands on the surface.
+  stream) and lands on the surface; or, after a resolved impact
+  (``surrogate.rom.surface_dem``), it starts in the column where the DEM
+  left it.
 - It then rolls downhill: while the drop to a neighbouring column exceeds
   tan(repose_angle) w it moves to the lower neighbour (the steeper side; a
   tie is broken by a uniform draw). This is the angle-of-repose relaxation
@@ -54,11 +56,11 @@ def surface_heights(container: Container, width: float, position, mass) -> np.nd
 
 
 @numba.njit(cache=True)
-def _deposit(heights, x_min, width, inlet_column, mass, areal_density, max_drop,
-             jitter, tie, offset, out):
+def _deposit(heights, x_min, width, start_column, mass, areal_density, max_drop, tie, offset,
+             out):
     columns = heights.size
     for k in range(mass.size):
-        c = min(max(inlet_column + int(np.floor(jitter[k] * 3.0)) - 1, 0), columns - 1)
+        c = min(max(start_column[k], 0), columns - 1)
         for _ in range(columns):
             left = heights[c] - heights[c - 1] if c > 0 else -1.0
             right = heights[c] - heights[c + 1] if c < columns - 1 else -1.0
@@ -75,20 +77,25 @@ def _deposit(heights, x_min, width, inlet_column, mass, areal_density, max_drop,
 
 
 def deposit(container: Container, width: float, heights: np.ndarray, mass,
-            rng: np.random.Generator) -> np.ndarray:
+            rng: np.random.Generator, landing_x=None) -> np.ndarray:
     """Resting positions (N, 2) [m] of arriving particles of ``mass``, in order.
 
     ``heights`` (from ``surface_heights`` with the same ``width``) is updated
-    in place as the particles settle.
+    in place as the particles settle. ``landing_x`` [m] (N,) starts each
+    particle in the column under it instead of under the inlet.
     """
     mass = np.ascontiguousarray(mass, dtype=np.float64)
     columns = heights.size
     width = (container.x_max - container.x_min) / columns
-    inlet_column = min(int((container.inlet_x - container.x_min) / width), columns - 1)
     draws = rng.random((3, mass.size))
+    if landing_x is None:
+        inlet_column = int((container.inlet_x - container.x_min) / width)
+        start = inlet_column + np.floor(draws[0] * 3.0).astype(np.int64) - 1
+    else:
+        start = np.floor((np.asarray(landing_x) - container.x_min) / width).astype(np.int64)
     out = np.empty((mass.size, 2))
-    _deposit(heights, container.x_min, width, inlet_column, mass, container.areal_density,
-             np.tan(container.repose_angle) * width, draws[0], draws[1], draws[2], out)
+    _deposit(heights, container.x_min, width, start, mass, container.areal_density,
+             np.tan(container.repose_angle) * width, draws[1], draws[2], out)
     return out
 
 

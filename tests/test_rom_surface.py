@@ -1,0 +1,129 @@
+"""Surface-layer DEM of the ROM stockpile: fall, impact, hand-over to the bulk."""
+
+import numpy as np
+import pytest
+
+from cosim import sizes
+from cosim.errors import ValidationError
+from cosim.particles import ParticleStore
+from surrogate.rom import doe
+from surrogate.rom.container import Container
+from surrogate.rom.grid import Grid, mass_field
+from surrogate.rom.model import RomModel
+from surrogate.rom.storage import RomStorage
+from surrogate.rom.surface_dem import SurfaceDem
+
+G = 9.81
+CONTAINER = Container(x_min=-10.0, x_max=10.0, floor=0.0, outlet_x=0.0, inlet_x=1.0,
+                      areal_density=1600.0, repose_angle=0.6, outlet_width=2.0)
+GRID = Grid.covering(-10.0, 10.0, 0.0, 8.0, 1.0)
+CONFIG = doe.training_config()
+
+
+def test_a_falling_particle_follows_the_closed_form_and_joins_after_its_impact():
+    surface = SurfaceDem(CONFIG, CONTAINER, impact_time=0.05)
+    start = surface.add(np.array([7], np.uint64), np.array([100.0]))[0]
+    height = start[1] - surface.radius[0]
+    v0 = CONFIG.inlet_velocity
+    landing = (-v0 + np.sqrt(v0 ** 2 + 2 * G * height)) / G  # bottom reaches the floor
+    t = 0.0
+    while t + 0.1 < landing - 0.05:  # well before the impact: exactly ballistic
+        assert surface.advance(0.1, 0.5, np.empty((0, 2)), np.empty(0))[0].size == 0
+        t += 0.1
+        expected = start[1] - v0 * t - 0.5 * G * t ** 2
+        assert surface.pos[0, 1] == pytest.approx(expected, abs=1e-9)
+        assert surface.pos[0, 0] == start[0]
+    ids, mass, position = surface.advance(landing - t + 0.1, 0.5, np.empty((0, 2)), np.empty(0))
+    assert ids.tolist() == [7] and mass.tolist() == [100.0] and len(surface) == 0
+    assert abs(position[0, 0] - CONTAINER.inlet_x) <= 0.5 * CONFIG.inlet_width + 0.05
+    # it joins at the end of its impact window: on the floor or at most one rebound above it
+    radius = 0.5 * CONFIG.diameter_of_mass(100.0)
+    rebound = CONFIG.restitution * (v0 + G * landing) * surface.impact_time
+    assert radius - 0.01 <= position[0, 1] <= radius + rebound + 0.01
+
+
+def test_the_floor_bounce_keeps_the_dems_restitution_at_the_surface_step():
+    """Closing speed out/in at the floor, resolved at t_c / 5 (the surface DEM's
+    step, the DEM's own): its restitution within 3 %."""
+    surface = SurfaceDem(CONFIG, CONTAINER, impact_time=10.0)
+    surface.add(np.array([1], np.uint64), np.array([CONFIG.sphere_mass(CONFIG.diameter_min)]))
+    while surface.pos[0, 1] > 1.0:
+        surface.advance(0.01, 0.5, np.empty((0, 2)), np.empty(0))
+    speeds = []
+    for _ in range(2000):
+        surface.advance(surface.dt, 0.5, np.empty((0, 2)), np.empty(0))
+        speeds.append(surface.vel[0, 1])
+    speeds = np.array(speeds)
+    impact = int(np.argmin(speeds))
+    rebound = speeds[impact:].max()
+    assert rebound / -speeds[impact] == pytest.approx(CONFIG.restitution, rel=0.03)
+
+
+def test_bad_surface_options_are_refused_by_name():
+    with pytest.raises(ValidationError, match="surface"):
+        RomStorage(surface="sandpile")
+    with pytest.raises(ValidationError, match="surface_dt_safety_factor"):
+        SurfaceDem(CONFIG, CONTAINER, dt_safety_factor=2.0)
+    with pytest.raises(ValidationError, match="impact_time"):
+        SurfaceDem(CONFIG, CONTAINER, impact_time=0.0)
+
+
+def _sink_model() -> RomModel:
+    """A ROM of the 2-D point-sink funnel flow on triangular heaps (as tests/test_rom.py)."""
+    rng = np.random.default_rng(1)
+    x, y = GRID.centres()
+    centres = np.column_stack([g.ravel() for g in np.meshgrid(x, y)])
+    masses, velocities, q_out, q_in = [], [], [], []
+    for _ in range(30):
+        gx, gy = np.meshgrid(np.arange(-9.8, 10, 0.4), np.arange(0.2, 8, 0.4))
+        height, centre = rng.uniform(4, 7.5), rng.uniform(-2, 2)
+        inside = gy < height - 0.6 * np.abs(gx - centre)
+        position = np.column_stack((gx[inside], gy[inside]))
+        field = mass_field(GRID, position, np.full(len(position), 256.0))
+        rate = rng.uniform(0, 400)
+        r = np.maximum(np.linalg.norm(centres, axis=1), 0.5)
+        flow = -rate / (1600.0 * np.pi * r)[:, None] * centres / r[:, None]
+        masses.append(field)
+        velocities.append(flow.reshape(GRID.ny, GRID.nx, 2) * (field > 0)[..., None])
+        q_out.append(rate), q_in.append(rng.uniform(0, 300))
+    return RomModel(GRID, 6, 6, 1e-3, CONTAINER, CONFIG.to_dict()).fit(
+        np.array(masses), np.array(q_out), np.array(q_in), np.array(velocities))
+
+
+def _run(model, seed):
+    store = ParticleStore(capacity=4096)
+    storage = RomStorage(model, rng=np.random.default_rng(seed)).bind(store, 1)
+    gx, gy = np.meshgrid(np.arange(-7.8, 8, 0.4), np.arange(0.2, 6, 0.4))
+    inside = gy < 5.5 - 0.6 * np.abs(gx)
+    ids = store.add(mass=np.full(inside.sum(), 256.0), f=sizes.swebrec(), grade=0.3,
+                    hardness=1.0, owner=1)
+    storage.place(ids, np.column_stack((gx[inside], gy[inside])))
+    received, left = [ids], []
+    for k in range(30):
+        new = store.add(mass=np.full(2, 100.0), f=sizes.swebrec(), grade=0.7, hardness=2.0,
+                        owner=1)
+        storage.receive(new, float(k))
+        received.append(new)
+        leaving = storage.step(float(k), 1.0, 200.0)
+        store.set_owner(store.slots(leaving), 2, k + 1.0)
+        left.append(leaving)
+    return store, storage, np.concatenate(received), np.concatenate(left)
+
+
+def test_rom_with_the_surface_dem_conserves_ids_and_mass_and_repeats_itself():
+    model = _sink_model()
+    store, storage, received, left = _run(model, seed=5)
+    assert storage.surface_dem is not None and storage.surface == "dem"
+    held = storage.held_ids()
+    assert np.unique(left).size == left.size
+    assert np.array_equal(np.sort(np.concatenate((left, held))), np.sort(received))
+    assert store.total_mass(2) == pytest.approx(200.0 * 30, abs=256.0)
+    assert store.total_mass(1) + store.total_mass(2) == pytest.approx(
+        store.mass[store.slots(received)].sum(), rel=1e-12)
+    # the newcomers landed on the heap near the inlet, not at its foot
+    newcomers = np.setdiff1d(held, received[: received.size - 60])
+    landed = store.position[store.slots(newcomers)]
+    assert np.median(np.abs(landed[:, 0] - CONTAINER.inlet_x)) < 3.0
+    again = _run(model, seed=5)
+    assert np.array_equal(again[3], left)
+    assert np.array_equal(again[0].position[again[0].slots(held)], store.position[store.slots(held)])
