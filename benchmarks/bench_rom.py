@@ -4,8 +4,8 @@ The held-out initial DEM pile of a ROM data directory (``minetwin rom
 evaluate --quick --out DIR``) is refined: every DEM particle becomes k
 particles of 1/k its mass, jittered within its radius, so the pile holds
 >= 20,000 pseudo-particles of the same total mass; the inflow particles are
-refined the same way. The trained ROM then runs the held-out controls for
-``--seconds`` simulated seconds. Prints JSON: particles, wall seconds per
+refined the same way. The trained ROM (``--surface dem``, the default, or
+``rule``) then runs the held-out controls for ``--seconds`` simulated seconds. Prints JSON: particles, wall seconds per
 simulated second and the real-time factor.
 
     .venv/bin/python benchmarks/bench_rom.py --data DIR --model DIR/rom_model.npz
@@ -28,6 +28,8 @@ def main(argv=None) -> int:
     parser.add_argument("--model", required=True)
     parser.add_argument("--particles", type=int, default=20_000)
     parser.add_argument("--seconds", type=float, default=120.0)
+    parser.add_argument("--surface", choices=("dem", "rule"), default="dem",
+                        help="surface layer of the ROM (default dem)")
     args = parser.parse_args(argv)
 
     from cosim.particles import ParticleStore
@@ -47,7 +49,8 @@ def main(argv=None) -> int:
     ids = store.add(mass=np.repeat(snap["mass"] / k, k), f=doe.FEED_F,
                     grade=np.repeat(snap["grade"], k), hardness=np.repeat(snap["hardness"], k),
                     owner=1)
-    storage = RomStorage(RomModel.load(args.model), rng=np.random.default_rng(1))
+    storage = RomStorage(RomModel.load(args.model), rng=np.random.default_rng(1),
+                         surface=args.surface)
     storage.bind(store, 1)
     storage.place(ids, np.repeat(snap["position"], k, axis=0) + jitter)
     rate = float(emissions["discharge_rate"])
@@ -69,7 +72,8 @@ def main(argv=None) -> int:
             wall += time.perf_counter() - tic
             store.remove(leaving)
     per_s = wall / (steps * doe.CONTROL_STEP)
-    print(json.dumps({"benchmark": "rom_stockpile_throughput", "particles_start": count,
+    print(json.dumps({"benchmark": "rom_stockpile_throughput", "surface": args.surface,
+                      "particles_start": count,
                       "particles_end": int(storage.held_ids().size),
                       "simulated_s": steps * doe.CONTROL_STEP, "wall_s": wall,
                       "wall_s_per_simulated_s": per_s, "real_time_factor": 1.0 / per_s,
