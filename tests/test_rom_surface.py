@@ -91,6 +91,7 @@ def _sink_model() -> RomModel:
 
 
 def _run(model, seed):
+    model.dispersivity = 0.02  # the random walk about the mean flow runs too
     store = ParticleStore(capacity=4096)
     storage = RomStorage(model, rng=np.random.default_rng(seed)).bind(store, 1)
     gx, gy = np.meshgrid(np.arange(-7.8, 8, 0.4), np.arange(0.2, 6, 0.4))
@@ -110,7 +111,7 @@ def _run(model, seed):
     return store, storage, np.concatenate(received), np.concatenate(left)
 
 
-def test_rom_with_the_surface_dem_conserves_ids_and_mass_and_repeats_itself():
+def test_rom_with_the_surface_dem_and_dispersion_conserves_ids_and_mass_and_repeats_itself():
     model = _sink_model()
     store, storage, received, left = _run(model, seed=5)
     assert storage.surface_dem is not None and storage.surface == "dem"

@@ -39,6 +39,7 @@ import numpy as np
 
 from cosim.sizes import swebrec
 from surrogate.rom.container import Container
+from surrogate.rom.dispersion import dispersion_fit
 from surrogate.rom.grid import Grid, displacement_velocity_field, mass_field
 
 CONTROL_STEP = 1.0
@@ -260,6 +261,7 @@ def run_scenario(dem, feed: LotFeed, discharge_rate: float, inflow_rate: float,
     Returns a dict: ``time`` (S,), ``mass`` (S, ny, nx) [kg], ``velocity``
     (S, ny, nx, 2) [m/s], ``discharge_rate`` (what the feeder took that
     second), ``setpoint``, ``inflow_rate`` (S,) [kg/s],
+    ``dispersion_fit`` (S, 2) (``surrogate.rom.dispersion``),
     ``wall_s`` (DEM wall time [s]), ``outflow`` (time, tracking_id, mass,
     grade, hardness per discharged particle).
     """
@@ -284,12 +286,16 @@ def run_scenario(dem, feed: LotFeed, discharge_rate: float, inflow_rate: float,
                      f"held {dem.held_mass() / 1e3:.1f} t, wall {wall:.0f} s")
     times, masses, velocities = bulk_fields(snapshots, grid)
     count = len(times)
+    lag = len(snapshots) - count
+    fits = np.array([dispersion_fit(grid, snapshots[k], snapshots[k + lag])
+                     for k in range(count)]).reshape(count, 2)
     taken = np.array(taken[:count])
     outflow = {key: np.concatenate([np.asarray(r[key]) for r in records])
                for key in ("id", "tracking_id", "mass", "grade", "hardness", "time")}
     return {"time": np.array(times), "mass": np.array(masses), "velocity": np.array(velocities),
             "discharge_rate": taken, "setpoint": np.full(count, float(discharge_rate)),
-            "inflow_rate": np.full(count, float(inflow_rate)), "wall_s": wall,
+            "inflow_rate": np.full(count, float(inflow_rate)), "dispersion_fit": fits,
+            "wall_s": wall,
             "outflow": outflow}
 
 
@@ -361,6 +367,8 @@ def load_samples(directory) -> dict:
     samples = {key: np.concatenate([p[key] for p in parts])
                for key in ("time", "mass", "velocity", "discharge_rate", "inflow_rate")}
     samples["run"] = np.concatenate([np.full(len(p["time"]), k) for k, p in enumerate(parts)])
+    if all("dispersion_fit" in p for p in parts):  # files from before the dispersion have none
+        samples["dispersion_fit"] = np.concatenate([p["dispersion_fit"] for p in parts])
     return samples
 
 

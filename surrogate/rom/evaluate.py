@@ -38,6 +38,7 @@ import numpy as np
 from cosim.particles import ParticleStore
 from cosim.storage import make_storage
 from surrogate.rom import doe, metrics
+from surrogate.rom.dispersion import dispersivity
 from surrogate.rom.grid import Grid, mean_field
 from surrogate.rom.model import RomModel
 
@@ -341,6 +342,9 @@ def train(directory, out=None, n_mass_modes: int | None = None,
                  np.ones(samples["run"].size, dtype=bool), *best)
     model.validation = validation
     model.dem_config = meta.get("dem_config")
+    if "dispersion_fit" in samples:
+        model.dispersivity = dispersivity(samples["dispersion_fit"])
+        _say(progress, f"bulk dispersivity {model.dispersivity:.4f} m (measured on the DEM runs)")
     if out is not None:
         model.save(out)
     return model

@@ -90,6 +90,10 @@ class RomModel:
         The training DEM's configuration (``DemConfig.to_dict()``; saved
         with the model): the storage's surface-layer DEM uses its contact
         law, particle density and inlet.
+
+    ``dispersivity`` [m] (default 0: none) is the bulk's dispersion about the
+    mean flow measured on the training DEM (``surrogate.rom.dispersion``);
+    ``minetwin rom train`` sets it and the file keeps it.
     """
 
     def __init__(self, grid: Grid, n_mass_modes: int = 12, n_velocity_modes: int = 16,
@@ -105,6 +109,7 @@ class RomModel:
         self.ridge = float(ridge)
         self.container = container
         self.dem_config = dem_config
+        self.dispersivity = 0.0
         self.arrays: dict[str, np.ndarray] = {}
         self.ranges: dict[str, list[float]] = {}
         self.n_samples = 0
@@ -234,7 +239,8 @@ class RomModel:
                 "n_velocity_modes": self.n_velocity_modes, "ridge": self.ridge,
                 "rate_scale": RATE_SCALE, "ranges": self.ranges, "n_samples": self.n_samples,
                 "container": None if self.container is None else self.container.to_dict(),
-                "validation": self.validation, "dem_config": self.dem_config}
+                "validation": self.validation, "dem_config": self.dem_config,
+                "dispersivity": self.dispersivity}
 
     def save(self, path) -> Path:
         """Write the model as one ``.npz`` file (arrays + JSON header)."""
@@ -273,4 +279,5 @@ class RomModel:
         model.ranges = {k: list(v) for k, v in header["ranges"].items()}
         model.n_samples = int(header["n_samples"])
         model.validation = header.get("validation", {})
+        model.dispersivity = float(header.get("dispersivity", 0.0))
         return model

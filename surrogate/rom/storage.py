@@ -13,8 +13,10 @@ One step of ``dt`` [s] is split into substeps of at most ``max_step`` [s]:
    the mass field M of the held particles is sampled on the model grid and
    the velocity field is predicted, v = ROM(M, q_out, q_in), with q_in the
    inflow rate [kg/s] averaged over the last ``inflow_window`` seconds;
-2. particles are advected by v (``surrogate.rom.advect``), then the bulk
-   is packed again (``surrogate.rom.surface.settle``: angle-of-repose
+2. particles are advected by v (``surrogate.rom.advect``), take a random
+   step of the bulk's dispersion about the mean flow, D = alpha |v| with
+   the dispersivity alpha measured on the training DEM
+   (``surrogate.rom.dispersion``), then the bulk is packed again (``surrogate.rom.surface.settle``: angle-of-repose
    avalanches, columns re-stacked at the bulk density; the regressed field
    is not divergence free, so advection alone would compact the pile);
 3. the outlet: the feeder's mass credit grows by q_out * h and whole
@@ -95,6 +97,7 @@ from cosim.errors import ValidationError, check_finite_range
 from cosim.storage import StorageModel, check_discharge_rate
 from surrogate.rom import doe
 from surrogate.rom.advect import advect, interpolate
+from surrogate.rom.dispersion import disperse
 from surrogate.rom.grid import mass_field, mean_field
 from surrogate.rom.handover import drop_heights
 from surrogate.rom.model import OutOfTrainingRange, RomModel
@@ -296,13 +299,20 @@ class RomStorage(StorageModel):
             self._field_time, self._field_rate = t, rate
         return self._field
 
-    def _move(self, field, h: float, position: np.ndarray, mass: np.ndarray) -> None:
-        """Advect ``position`` in place by ``field`` over ``h`` [s], then pack the bulk."""
+    def _move(self, field, h: float, position: np.ndarray, mass: np.ndarray,
+              dispersion: bool = True) -> None:
+        """Advect ``position`` in place by ``field`` over ``h`` [s], let it disperse
+        about the mean flow (``surrogate.rom.dispersion``, the model's measured
+        dispersivity; left out with ``dispersion=False``), then pack the bulk."""
         grid, c = self.model.grid, self.container
         # substeps keep each move below half a cell (CFL-like)
         substeps = max(1, int(np.ceil(h * np.abs(field).max() / (0.5 * min(grid.dx, grid.dy)))))
         advect(position, field, grid.x_min, grid.y_min, grid.dx, grid.dy, h, substeps,
                c.x_min, c.x_max, c.floor)
+        if dispersion and self.model.dispersivity > 0:
+            disperse(position, field, grid, self.model.dispersivity, h, self.rng)
+            np.clip(position[:, 0], c.x_min, c.x_max, out=position[:, 0])
+            np.maximum(position[:, 1], c.floor, out=position[:, 1])
         settle(c, self._width, position, mass)
 
     def _nearest_first(self, position, count_hint: int) -> np.ndarray:
@@ -436,7 +446,8 @@ class RomStorage(StorageModel):
         """Feed for the next ``horizon`` s: ``(ids, mass_kg)``.
 
         The held particles are advected forward with the current field at a
-        constant ``discharge_rate`` and no inflow (the funnel zone drains);
+        constant ``discharge_rate`` and no inflow (the funnel zone drains),
+        without the random dispersion (the forecast follows the mean flow);
         the ones the outlet takes, then the nearest remaining ones, then the
         surface layer's particles still falling, are credited until
         rate * horizon (plus the current credit) is covered.
@@ -454,7 +465,7 @@ class RomStorage(StorageModel):
         for _ in range(substeps):
             if index.size == 0:
                 break
-            self._move(field, h, position, mass)
+            self._move(field, h, position, mass, dispersion=False)
             credit += rate * h
             taken, credit = self._take(position, mass, credit, drained)
             if taken.size:
