@@ -30,11 +30,11 @@ Model:
   surface by the angle-of-repose rule, ``surrogate.rom.surface.deposit``).
   Why not longer: a fixed bed does not give way as a loose one does, so a
   particle kept in the DEM on it hops and rolls far down the flanks. On a
-  settled 110 t training pile, 60 particles kept in the DEM for up to 2 s
-  came to rest between -23 m and +25 m (5th-95th percentile) of the inlet,
-  where the DEM of the same pile puts its newcomers between -2.2 m and
-  +3.7 m (``tests/test_rom_surface.py`` keeps the impact window's spread
-  within the DEM's).
+  settled 30 t pile of the training DEM fed at 200 kg/s, the DEM's
+  newcomers rest between -4.2 m and +2.4 m of the inlet (5th-95th
+  percentile, 4 s after entry); the surface layer puts them between -3.2 m
+  and +3.3 m, and kept in the fixed-bed DEM for 2 s they end between
+  -10.0 m and +7.5 m (``tests/test_rom_surface.py``, slow test).
 - Contact history (tangential and rolling springs) is kept in
   ``HISTORY_SLOTS`` slots per particle for the length of one ``advance``
   call (the bed is rebuilt between calls).
