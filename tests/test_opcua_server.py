@@ -121,11 +121,11 @@ def test_refused_sessions(plant, attempt, tmp_path):
             return client
         return await connect(server.url, state, role, **kwargs)
 
-    async def attempt_session():
-        client = await body()
-        await client.disconnect()
-
-    if attempt == "no_security":
+    if attempt != "no_security":
+        async def attempt_session():
+            client = await body()
+            await client.disconnect()
+    else:
         # asyncua's client itself refuses (no None endpoint offered), so go
         # around it: a None channel, a session, a valid user, then a read
         async def attempt_session():

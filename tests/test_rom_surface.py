@@ -138,7 +138,6 @@ def test_where_newcomers_come_to_rest_matches_the_dem_and_a_longer_dem_window_do
     its newcomers within that span widened by 1 m on each side; keeping them
     in the fixed-bed DEM for 2 s instead sends them further out than the DEM
     does (why the impact window is short; see surrogate.rom.surface_dem)."""
-    from surrogate.dem import Dem
     from surrogate.rom.surface import column_width, deposit, settle, surface_heights
 
     cfg = doe.training_config()

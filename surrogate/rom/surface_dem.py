@@ -74,7 +74,6 @@ HISTORY_SLOTS = 8
 """Contacts per free particle whose springs are remembered."""
 
 
-
 @njit(inline="always", **kernels.HOT)
 def _slot(partner, i, code):
     """Slot of contact ``code`` of particle i, a new one (zeroed) or -1 if all are taken."""
