@@ -106,31 +106,34 @@ def plot_ladder(result: dict, path) -> None:
                        color=colours[p["kind"]], s=40, zorder=3)
             ax.annotate(p["label"], (p["wall_s_per_simulated_s"], p["tracking_error"]),
                         textcoords="offset points", xytext=(7, -3), fontsize=8)
-    # ROM families: one line each in mode order; the points of a family lie too
-    # close for a label each, so one list per family (modes: error) stands beside it
-    for kind, marker, side in (("rom_dem", "o", 1), ("rom_rule", "s", -1)):
-        family = sorted((p for p in points if p["kind"] == kind), key=lambda p: p["modes"])
+    # the families (ROM per surface layer, in mode order; DEM, in step order) lie
+    # too close for a label per point: one line each, and a list (setting: error)
+    # beside it
+    stable_dem = [p for p in points if p["kind"] == "dem" and not p.get("unstable")]
+    families = (
+        ("rom_dem", "o", 1, "modes: error", lambda p: p["modes"],
+         lambda p: "/".join(str(m) for m in dict.fromkeys(p["modes"]))
+         + ("*" if "default" in p["label"] else "")),
+        ("rom_rule", "s", -1, "modes: error", lambda p: p["modes"],
+         lambda p: "/".join(str(m) for m in dict.fromkeys(p["modes"]))
+         + ("*" if "default" in p["label"] else "")),
+        ("dem", "o", -1, "dt / stable_dt: error", lambda p: p["dt_factor"],
+         lambda p: f"{p['dt_factor']:g}"))
+    for kind, marker, side, title, order, name in families:
+        family = sorted((p for p in (stable_dem if kind == "dem" else points)
+                         if p["kind"] == kind), key=order)
         if not family:
             continue
         x = [p["wall_s_per_simulated_s"] for p in family]
         y = [p["tracking_error"] for p in family]
         ax.plot(x, y, color=colours[kind], marker=marker, lw=0.8, ms=6, zorder=3)
-        rows = [f"{'/'.join(str(m) for m in dict.fromkeys(p['modes']))}"
-                f"{'*' if 'default' in p['label'] else ''}: {p['tracking_error']:.2f}"
-                for p in family]
+        rows = [f"{name(p)}: {p['tracking_error']:.2f}" for p in family]
         anchor = (max(x) if side > 0 else min(x), float(np.mean(y)))
-        ax.annotate("modes: error\n" + "\n".join(rows), anchor, textcoords="offset points",
+        ax.annotate(f"{title}\n" + "\n".join(rows), anchor, textcoords="offset points",
                     xytext=(10 * side, 0), ha="left" if side > 0 else "right", va="center",
-                    fontsize=7, color=colours[kind])
-    stable = [p for p in points if p["kind"] == "dem" and not p.get("unstable")]
-    for k, p in enumerate(sorted(stable, key=lambda p: p["wall_s_per_simulated_s"])):
-        ax.scatter(p["wall_s_per_simulated_s"], p["tracking_error"], color=colours["dem"],
-                   s=40, zorder=3)
-        right = k % 2 == 0  # alternate sides so neighbouring labels do not collide
-        ax.annotate(f"dt = {p['dt_factor']:g} stable_dt",
-                    (p["wall_s_per_simulated_s"], p["tracking_error"]),
-                    textcoords="offset points", xytext=(7 if right else -7, -3),
-                    ha="left" if right else "right", fontsize=7)
+                    fontsize=7, color=colours[kind], zorder=4,
+                    bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none",
+                          "alpha": 0.85})
     unstable = [p for p in points if p.get("unstable")]
     for k, p in enumerate(sorted(unstable, key=lambda p: p["wall_s_per_simulated_s"])):
         ax.scatter(p["wall_s_per_simulated_s"], top, color=colours["dem"], marker="x", s=60,
@@ -251,7 +254,7 @@ def main(argv=None) -> int:
         label = f"DEM dt = {factor:g} stable_dt"
         if int(run.get("unstable", 0)):
             reached = float(run["unstable_at"])
-            points.append({"label": f"{label}: unstable at {reached:.2g} s", "kind": "dem",
+            points.append({"label": f"{label}: unstable at {reached:.3g} s", "kind": "dem",
                            "dt_factor": factor, "unstable": True,
                            "unstable_at_s": reached, "why": str(run["unstable_reason"]),
                            "tracking_error": None,
