@@ -99,6 +99,9 @@ def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
     from surrogate.dem import Dem
 
     directory = Path(directory)
+    if (directory / "doe.json").is_file() and doe.read_meta(directory).get("quick") and not quick:
+        _say(progress, f"{directory} holds the quick design: growing it to the full design "
+                       "(runs on disk are kept; pass --quick to stay with the quick one)")
     for sub in ("piles", "train"):
         (directory / sub).mkdir(parents=True, exist_ok=True)
     cfg = doe.training_config()
