@@ -35,6 +35,9 @@ def register(subparsers) -> None:
                           help="processes running independent DEM runs of --quick (2)")
     evaluate.add_argument("--check", action="store_true",
                           help="exit 1 unless every target in summary.json 'targets' is met")
+    evaluate.add_argument("--surface", choices=("dem", "rule"), default="dem",
+                          help="the ROM's surface layer: resolved DEM impact (default) or the "
+                               "sandpile rule alone")
     _model_options(evaluate)
     evaluate.set_defaults(handler=run_evaluate)
     parser.set_defaults(handler=lambda args: parser.print_help() or 2)
@@ -88,7 +91,7 @@ def run_evaluate(args) -> int:
             raise ValidationError("--model/--data", "both given (or use --quick --out DIR)")
         data = Path(args.data)
         model = RomModel.load(args.model)
-    summary = evaluate(model, data, progress=_progress)
+    summary = evaluate(model, data, progress=_progress, rom_options={"surface": args.surface})
     path = write_summary(summary, args.out or data)
     shown = {k: summary[k] for k in ("tracking_error", "tracking_error_dem_noise_floor",
                                      "velocity_field_rel_error",

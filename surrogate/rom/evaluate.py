@@ -558,6 +558,8 @@ def evaluate(model: RomModel, directory, progress=None, rom_options=None) -> dic
     summary["targets"] = {key: all(s["targets"][key] for s in runs) for key in runs[0]["targets"]}
     summary["scenarios"] = scenarios
     summary["model"] = model.header()
+    summary["rom_options"] = {k: v for k, v in (rom_options or {}).items()
+                              if isinstance(v, (str, int, float, bool))}
     return summary
 
 
