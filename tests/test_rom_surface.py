@@ -111,6 +111,7 @@ def _run(model, seed):
     return store, storage, np.concatenate(received), np.concatenate(left)
 
 
+@pytest.mark.filterwarnings("ignore::surrogate.rom.model.OutOfTrainingRange")
 def test_rom_with_the_surface_dem_and_dispersion_conserves_ids_and_mass_and_repeats_itself():
     model = _sink_model()
     store, storage, received, left = _run(model, seed=5)
