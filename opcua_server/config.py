@@ -63,6 +63,8 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
     _positive(sp, "max_discharge_rate_kg_s", "sp201")
     check_finite_range("sp201.discharge_rate_kg_s", sp["discharge_rate_kg_s"], 0.0,
                        sp["max_discharge_rate_kg_s"], unit="kg/s")
+    check_finite_range("sp201.discharge_start_s", sp.get("discharge_start_s", 0.0), 0.0,
+                       unit="s")
     _positive(config["server"], "tick_s", "server")
     lots = config["feed"].get("lots", [])
     if not lots:

@@ -122,7 +122,10 @@ class PlantProcess:
         self.max_belt_speed = {"cv101": float(c1["max_belt_speed_m_s"]),
                                "cv301": float(c3["max_belt_speed_m_s"])}
         self.max_discharge_rate = float(sp["max_discharge_rate_kg_s"])
-        self.discharge_rate_setpoint = float(sp["discharge_rate_kg_s"])
+        # the configured setpoint takes effect at discharge_start_s (the pile fills before)
+        self._scheduled_rate = float(sp["discharge_rate_kg_s"])
+        self._discharge_start = float(sp.get("discharge_start_s", 0.0))
+        self.discharge_rate_setpoint = self._scheduled_rate if self._discharge_start <= 0 else 0.0
         self.lots = config["feed"]["lots"]
         self._lot_ends = np.cumsum([float(lot["duration_s"]) for lot in self.lots])
         self.next_tracking_id = int(config["feed"]["first_tracking_id"])
@@ -182,6 +185,9 @@ class PlantProcess:
         for _ in range(self.cv301.shifts(dt)):
             self._shift_cv301()
         self.time += dt
+        if 0 < self._discharge_start <= self.time:
+            self.discharge_rate_setpoint = self._scheduled_rate
+            self._discharge_start = 0.0
         return new
 
     def _discharge(self, head: dict, t: float) -> InboundRecord:
@@ -319,6 +325,7 @@ class PlantProcess:
             raise ExchangeRefused("BadOutOfRange", "DischargeRateSetpoint",
                                   f"in [0, {self.max_discharge_rate:g}] kg/s", f"got {rate!r}")
         self.discharge_rate_setpoint = rate
+        self._discharge_start = 0.0  # the operator's setpoint stands
 
     def set_belt_speed(self, belt: str, speed: float) -> None:
         """Belt speed [m/s] of ``cv101`` or ``cv301`` in [0, max]."""

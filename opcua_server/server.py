@@ -196,6 +196,7 @@ class PlantServer:
         self.insecure = insecure
         self.lockstep = lockstep
         self.process = PlantProcess(config)
+        self._published_setpoint = self.process.discharge_rate_setpoint
         srv = config["server"]
         self.host, self.port = srv["host"], int(srv["port"])
         self.state_dir = Path(srv["state_dir"])
@@ -362,6 +363,9 @@ class PlantServer:
                       ua.VariantType.Int32)
         w = self._write
         await w("Plant.SimulationTime", p.time, D)
+        if p.discharge_rate_setpoint != self._published_setpoint:  # the scheduled start
+            await w("Plant.SP201.DischargeRateSetpoint", p.discharge_rate_setpoint, D)
+            self._published_setpoint = p.discharge_rate_setpoint
         b = p.cv101
         await w("Plant.CV101.BinTrackingIds", b.tracking_id.tolist(), U)
         await w("Plant.CV101.BinMasses", b.mass.tolist(), D)

@@ -162,3 +162,20 @@ def test_stockpile_sensors_and_display_fields():
     with pytest.raises(ValidationError, match="grade"):
         asset.receive_bin(9, 10.0, 1.1, 1.0)
     assert math.isclose(asset.totals()["held_mass_kg"], 900.0)
+
+
+def test_discharge_starts_at_the_configured_time_and_an_operator_write_wins():
+    config = load_config(overrides={"sp201": {"discharge_rate_kg_s": 900.0,
+                                              "discharge_start_s": 90.0}})
+    process = PlantProcess(config)
+    process.advance(89.9)
+    assert process.discharge_rate_setpoint == 0.0  # the pile fills first
+    process.advance(0.2)
+    assert process.discharge_rate_setpoint == 900.0
+    early = PlantProcess(config)
+    early.advance(10.0)
+    early.set_discharge_rate(300.0)
+    early.advance(200.0)
+    assert early.discharge_rate_setpoint == 300.0
+    with pytest.raises(ValidationError, match="sp201.discharge_start_s"):
+        load_config(overrides={"sp201": {"discharge_start_s": -1.0}})

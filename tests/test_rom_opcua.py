@@ -28,8 +28,9 @@ SETPOINT_KG_S = 200.0
 """Discharge-rate setpoint of the mock server's default configuration [kg/s]."""
 PARTICLE_MASS_KG = 100.0
 """Largest pseudo-particle mass of ``minetwin stockpile`` (its default) [kg]."""
-FIRST_BIN_S = 20.0
-"""CV101 is 40 m at 2 m/s: the first bin reaches the stockpile after 20 s."""
+DISCHARGE_START_S = 30.0
+"""The server's setpoint is 0 until then (``sp201.discharge_start_s``): the pile fills
+first (CV101 is 40 m at 2 m/s: the first bin arrives after 20 s)."""
 
 
 def synthetic_rom(samples: int = 40, seed: int = 1) -> RomModel:
@@ -67,9 +68,12 @@ def rom_file(tmp_path_factory):
 def test_rom_stockpile_over_opcua_loses_nothing_and_discharges(rom_file, tmp_path):
     out = tmp_path / "run"
     duration = 60.0
+    config = tmp_path / "plant.toml"
+    config.write_text(f"[sp201]\ndischarge_start_s = {DISCHARGE_START_S}\n")
     code = main(["integration-test", "--duration", str(duration), "--speed", "3",
                  "--model", "rom", "--option", f"model={rom_file}",
-                 "--option", "update_interval=2", "--out", str(out), "--no-monitor"])
+                 "--option", "update_interval=2", "--config", str(config),
+                 "--out", str(out), "--no-monitor"])
     report = json.loads((out / "report.json").read_text())
     assert code == 0, report
     # the stockpile process ran the ROM from this file, with both options
@@ -84,16 +88,18 @@ def test_rom_stockpile_over_opcua_loses_nothing_and_discharges(rom_file, tmp_pat
     assert report["bins_in"] >= 35
     assert report["tracking_ids_lost"] == 0 and report["tracking_ids_duplicated"] == 0
     assert report["mass_balance_rel_error"] < 1e-9 and report["unsent_reports"] == 0
-    # the ROM's feeder really discharged bins: never more than the setpoint
-    # allows since the first bin arrived (the credit rule, plus at most one
-    # particle), and at the setpoint once the pile exists (inflow 250 kg/s >
-    # setpoint, so it does not run dry); reports are stamped with the
-    # server's time at the exchange cycle that carries them (about 0.3 s of
-    # jitter) and the ROM takes whole particles, hence 10 %
+    # the ROM's feeder really discharged bins: nothing before the scheduled
+    # start of the discharge (the setpoint node read 0), never more than the
+    # setpoint allows since then (the credit rule, plus at most one particle),
+    # and at the setpoint once it runs (inflow 250 kg/s > setpoint, so it does
+    # not run dry); reports are stamped with the server's time at the
+    # exchange cycle that carries them (about 0.3 s of jitter) and the ROM
+    # takes whole particles, hence 10 %
     assert report["outflow_reports"] >= 10
-    assert 0 < report["mass_out_kg"] <= (SETPOINT_KG_S * (report["duration_s"] - FIRST_BIN_S)
+    assert 0 < report["mass_out_kg"] <= (SETPOINT_KG_S * (report["duration_s"] - DISCHARGE_START_S)
                                          + PARTICLE_MASS_KG)
     log = json.loads((out / "ledger.json").read_text())["outflow_log"]
+    assert log[0]["time_s"] >= DISCHARGE_START_S
     discharged = sum(row["mass_kg"] for row in log[1:])
     rate = discharged / (log[-1]["time_s"] - log[0]["time_s"])
     assert rate == pytest.approx(SETPOINT_KG_S, rel=0.1)
