@@ -109,9 +109,13 @@ def _touch(params, partner, hist_t, hist_r, seen, i, code, delta, nx_, ny_, vn, 
 
 @njit(**kernels.HOT)
 def _advance(n_steps, dt, pos, vel, omega, radius, body_mass, inv_inertia, active, first_step,
-             impact_age, fixed_pos, fixed_radius, cell_start, cell_members, grid_x0, grid_y0,
-             cell_size, grid_nx, grid_ny, partner, hist_t, hist_r, x_min, x_max, floor, params,
-             impact_time):
+             arrival_order, impact_age, fixed_pos, fixed_radius, cell_start, cell_members,
+             grid_x0, grid_y0, cell_size, grid_nx, grid_ny, partner, hist_t, hist_r, x_min, x_max,
+             floor, params, impact_time):
+    """``n_steps`` steps of ``dt``; particle i takes part from step ``first_step[i]``
+    (``arrival_order`` sorts them by it) until it joins the bulk (``active[i]``
+    becomes False). Only the particles taking part are visited, and steps in
+    which none does are skipped."""
     n = pos.shape[0]
     n_fixed = fixed_pos.shape[0]
     g = params[kernels.P_G]
@@ -120,19 +124,28 @@ def _advance(n_steps, dt, pos, vel, omega, radius, body_mass, inv_inertia, activ
     torque = np.zeros(n)
     touching = np.zeros(n, np.bool_)
     seen = np.zeros(partner.shape[1], np.bool_)
-    for step in range(n_steps):
-        any_active = False
-        for i in range(n):
+    zone = np.empty(n, np.int64)  # the particles taking part, in arrival order
+    in_zone = 0
+    arrived = 0
+    step = 0
+    while step < n_steps:
+        while arrived < n and first_step[arrival_order[arrived]] <= step:
+            zone[in_zone] = arrival_order[arrived]
+            in_zone += 1
+            arrived += 1
+        if in_zone == 0:
+            if arrived == n or first_step[arrival_order[arrived]] >= n_steps:
+                return
+            step = first_step[arrival_order[arrived]]
+            continue
+        for z in range(in_zone):
+            i = zone[z]
             force[i, 0] = 0.0
             force[i, 1] = 0.0
             torque[i] = 0.0
             touching[i] = False
-        for i in range(n):
-            if not active[i]:
-                continue
-            any_active = True  # still on its way down counts: it arrives later in the call
-            if step < first_step[i]:
-                continue
+        for z in range(in_zone):
+            i = zone[z]
             seen[:] = False
             xi_, yi, ri, mi = pos[i, 0], pos[i, 1], radius[i], body_mass[i]
             # fixed boundary disks in the 3 x 3 cells around i
@@ -161,10 +174,11 @@ def _advance(n_steps, dt, pos, vel, omega, radius, body_mass, inv_inertia, activ
                         force[i, 1] += fy
                         torque[i] += -ri * ft + mr
                         touching[i] = True
-            # other free particles (few: all pairs)
-            for j in range(i + 1, n):
+            # the other free particles taking part (few: all pairs)
+            for y in range(z + 1, in_zone):
+                j = zone[y]
                 dy = yi - pos[j, 1]
-                if abs(dy) >= ri + r_max or not active[j] or step < first_step[j]:
+                if abs(dy) >= ri + r_max:
                     continue
                 dx = xi_ - pos[j, 0]
                 rj = radius[j]
@@ -218,11 +232,9 @@ def _advance(n_steps, dt, pos, vel, omega, radius, body_mass, inv_inertia, activ
                     partner[i, s] = -1
                     hist_t[i, s] = 0.0
                     hist_r[i, s] = 0.0
-        if not any_active:
-            return step
-        for i in range(n):
-            if not active[i] or step < first_step[i]:
-                continue
+        kept = 0
+        for z in range(in_zone):
+            i = zone[z]
             vel[i, 0] += force[i, 0] / body_mass[i] * dt
             vel[i, 1] += (force[i, 1] / body_mass[i] - g) * dt
             omega[i] += torque[i] * inv_inertia[i] * dt
@@ -233,7 +245,11 @@ def _advance(n_steps, dt, pos, vel, omega, radius, body_mass, inv_inertia, activ
                 impact_age[i] += dt
                 if impact_age[i] >= impact_time:
                     active[i] = False
-    return n_steps
+            if active[i]:
+                zone[kept] = i
+                kept += 1
+        in_zone = kept
+        step += 1
 
 
 def _cell_list(fixed_pos: np.ndarray, cell_size: float):
@@ -372,7 +388,8 @@ class SurfaceDem:
         active = np.ones(n, dtype=np.bool_)
         c = self.container
         _advance(steps, dt, self.pos, self.vel, self.omega, self.radius, body,
-                 1.0 / (0.4 * body * self.radius ** 2), active, first, self.impact_age,
+                 1.0 / (0.4 * body * self.radius ** 2), active, first,
+                 np.argsort(first, kind="stable"), self.impact_age,
                  fixed_pos, np.ascontiguousarray(fixed_radius), start, members, x0, y0,
                  4.0 * r_max, nx, ny, np.full((n, HISTORY_SLOTS), -1, np.int64),
                  np.zeros((n, HISTORY_SLOTS)), np.zeros((n, HISTORY_SLOTS)), c.x_min, c.x_max,
