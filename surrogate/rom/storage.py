@@ -16,8 +16,8 @@ One step of ``dt`` [s] is split into substeps of at most ``max_step`` [s]:
 2. particles are advected by v (``surrogate.rom.advect``), take a random
    step of the bulk's dispersion about the mean flow, D = alpha |v| with
    the dispersivity alpha measured on the training DEM
-   (``surrogate.rom.dispersion``), then the bulk is packed again (``surrogate.rom.surface.settle``: angle-of-repose
-   avalanches, columns re-stacked at the bulk density; the regressed field
+   (``surrogate.rom.dispersion``), then the bulk is packed again
+   (``surrogate.rom.surface.settle``: angle-of-repose avalanches, columns re-stacked at the bulk density; the regressed field
    is not divergence free, so advection alone would compact the pile);
 3. the outlet: the feeder's mass credit grows by q_out * h and whole
    particles leave while their mass fits in the credit (the credit rule of
@@ -76,7 +76,7 @@ fallback_config : DemConfig or dict or str, optional
     container.
 surface : {"dem", "rule"}
     Surface layer (default "dem", see above).
-surface_config : DemConfig or dict, optional
+surface_config : DemConfig or dict or str, optional
     The DEM of the surface layer (contact law, particle density and sizes,
     inlet height); default the model's training DEM (``RomModel.dem_config``),
     else ``surrogate.rom.doe.training_config()``.
