@@ -17,8 +17,9 @@ One step of ``dt`` [s] is split into substeps of at most ``max_step`` [s]:
    step of the bulk's dispersion about the mean flow, D = alpha |v| with
    the dispersivity alpha measured on the training DEM
    (``surrogate.rom.dispersion``), then the bulk is packed again
-   (``surrogate.rom.surface.settle``: angle-of-repose avalanches, columns re-stacked at the bulk density; the regressed field
-   is not divergence free, so advection alone would compact the pile);
+   (``surrogate.rom.surface.settle``: angle-of-repose avalanches, columns
+   re-stacked at the bulk density; the regressed field is not divergence
+   free, so advection alone would compact the pile);
 3. the outlet: the feeder's mass credit grows by q_out * h and whole
    particles leave while their mass fits in the credit (the credit rule of
    ``cosim.storage.StorageModel``), so the discharged mass follows
