@@ -408,6 +408,9 @@ class StockpileClient:
             "lag_p99_s": float(np.percentile(self.lags_s, 99)) if self.lags_s else 0.0,
             "first_cycle_lag_s": self.lags_s[0] if self.lags_s else 0.0,
             "reconnects": self.reconnects, "history": self.asset.history(),
+            # a ROM: the inputs outside its training ranges at its latest check
+            "out_of_training_range_now": list(getattr(self.asset.storage, "out_of_range_now",
+                                                      [])),
         }
         if self.o.summary:
             tmp = Path(f"{self.o.summary}.tmp")

@@ -99,6 +99,19 @@ def filled_storage(model, rng, seed=0):
     return store, storage, ids
 
 
+@pytest.mark.filterwarnings("ignore::surrogate.rom.model.OutOfTrainingRange")
+def test_the_storage_says_which_inputs_are_out_of_range_now(trained):
+    """The warning comes once; ``out_of_range_now`` follows the latest check."""
+    model, _ = trained
+    store, storage, _ = filled_storage(model, np.random.default_rng(2))
+    storage.step(0.0, 1.0, 1900.0)
+    assert "discharge_rate" in storage.out_of_range_now
+    assert "discharge_rate" in storage.out_of_range
+    storage.step(1.0, 1.0, 100.0)  # a new rate is checked at once
+    assert "discharge_rate" not in storage.out_of_range_now
+    assert "discharge_rate" in storage.out_of_range  # the record of the first warning stays
+
+
 # the synthetic heaps are reshaped by the repose rule, so the mass-distribution
 # range warning fires; it is tested on its own above
 @pytest.mark.filterwarnings("ignore::surrogate.rom.model.OutOfTrainingRange")

@@ -113,6 +113,7 @@ def run(args) -> int:
         "duration_s": ledger["time_s"], "speed": args.speed, "model": args.model,
         "storage_options": storage_options, "stockpile_model": summary["model"],
         "stockpile_warnings": _warnings(out / "stockpile.log"),
+        "out_of_training_range_at_end": summary.get("out_of_training_range_now", []),
         "max_lag_s": ledger["max_surrogate_lag_s"],
         "client_max_lag_s": summary["max_lag_s"], "lag_p99_s": summary["lag_p99_s"],
         "first_cycle_lag_s": summary["first_cycle_lag_s"],

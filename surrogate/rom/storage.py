@@ -174,6 +174,7 @@ class RomStorage(StorageModel):
         self._width = None
         self._drained = None
         self.out_of_range: dict[str, str] = {}
+        self.out_of_range_now: list[str] = []
         self._next_range_check = -np.inf
         if model is not None:
             self.fit(model)
@@ -277,7 +278,8 @@ class RomStorage(StorageModel):
 
         Every ``RANGE_CHECK_INTERVAL`` seconds the inputs are checked against
         the training ranges; each input found outside is warned once
-        (``OutOfTrainingRange``) and its message kept in ``out_of_range``.
+        (``OutOfTrainingRange``) and its message kept in ``out_of_range``;
+        ``out_of_range_now`` names the inputs outside at the latest check.
         """
         model = self._need_model()
         mass = mass_field(model.grid, self._pos, self._mass)
@@ -286,6 +288,7 @@ class RomStorage(StorageModel):
             self._next_range_check = t + RANGE_CHECK_INTERVAL
             found = model.check_ranges(mass, discharge_rate, inflow, model.mass_residual(mass),
                                        warn=False)
+            self.out_of_range_now = sorted(found)
             for name, message in found.items():
                 if name not in self.out_of_range:
                     self.out_of_range[name] = message
