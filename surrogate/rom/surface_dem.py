@@ -252,20 +252,6 @@ def _advance(n_steps, dt, pos, vel, omega, radius, body_mass, inv_inertia, activ
         step += 1
 
 
-def _cell_list(fixed_pos: np.ndarray, cell_size: float):
-    """Counting sort of the fixed disks into square cells: ``(start, members, x0, y0, nx, ny)``."""
-    if fixed_pos.shape[0] == 0:
-        return np.zeros(2, np.int64), np.zeros(0, np.int64), 0.0, 0.0, 1, 1
-    x0, y0 = fixed_pos.min(axis=0)
-    cell = np.floor((fixed_pos - (x0, y0)) / cell_size).astype(np.int64)
-    nx, ny = int(cell[:, 0].max()) + 1, int(cell[:, 1].max()) + 1
-    index = cell[:, 1] * nx + cell[:, 0]
-    members = np.argsort(index, kind="stable")
-    start = np.zeros(nx * ny + 1, np.int64)
-    np.cumsum(np.bincount(index, minlength=nx * ny), out=start[1:])
-    return start, members, float(x0), float(y0), nx, ny
-
-
 class SurfaceDem:
     """Free particles between the inlet and the bulk (see the module docstring)."""
 
@@ -382,7 +368,11 @@ class SurfaceDem:
         first = self._fall(dt, steps,
                            float((fixed_pos[:, 1] + fixed_radius).max() if fixed_radius.size
                                  else self.container.floor) + 2.0 * r_max)
-        start, members, x0, y0, nx, ny = _cell_list(fixed_pos, 4.0 * r_max)
+        if fixed_pos.shape[0]:  # the DEM's cell sort; it may widen the cells, never narrow them
+            x0, y0, cell, nx, ny, start, members = kernels._cell_grid(fixed_pos, 4.0 * r_max)
+        else:
+            x0, y0, cell, nx, ny = 0.0, 0.0, 4.0 * r_max, 1, 1
+            start, members = np.zeros(2, np.int64), np.zeros(0, np.int64)
         n = self.ids.size
         body = self.config.sphere_mass(2.0 * self.radius)
         active = np.ones(n, dtype=np.bool_)
@@ -391,7 +381,7 @@ class SurfaceDem:
                  1.0 / (0.4 * body * self.radius ** 2), active, first,
                  np.argsort(first, kind="stable"), self.impact_age,
                  fixed_pos, np.ascontiguousarray(fixed_radius), start, members, x0, y0,
-                 4.0 * r_max, nx, ny, np.full((n, HISTORY_SLOTS), -1, np.int64),
+                 cell, nx, ny, np.full((n, HISTORY_SLOTS), -1, np.int64),
                  np.zeros((n, HISTORY_SLOTS)), np.zeros((n, HISTORY_SLOTS)), c.x_min, c.x_max,
                  c.floor, self.params, self.impact_time)
         joined = ~active
