@@ -169,3 +169,28 @@ def test_angle_of_repose_estimator_reads_a_laid_out_triangle(angle):
 
     dem = packed_pile(DemConfig(floor_width=80.0), 1500, seed=0, angle_deg=angle)
     assert angle_of_repose(dem.pos, dem.radius) == pytest.approx(angle, abs=1.5)
+
+
+def test_neighbour_lists_grow_past_their_first_capacity():
+    """Lists start with room for ~8 pairs and ~1 wall per disk; denser scenes double it."""
+    from surrogate.dem import kernels
+
+    # 2 disks each within reach of 30 short segments: 60 wall entries > 2 + 16
+    pos = np.array([[0.0, 0.0], [5.0, 0.0]])
+    radius = np.full(2, 0.5)
+    angles = np.linspace(0, 2 * np.pi, 30, endpoint=False)
+    walls = np.array([[x + 0.4 * np.cos(a), 0.4 * np.sin(a), x + 0.45 * np.cos(a),
+                       0.45 * np.sin(a)] for x in (0.0, 5.0) for a in angles])
+    empty = np.zeros(1, np.int64)
+    start, wall, ht, hr = kernels.build_wall_list(pos, radius, 0.05, walls, empty,
+                                                  np.zeros(0, np.int64), np.zeros(0),
+                                                  np.zeros(0), np.full(2, -1))
+    assert start.tolist() == [0, 30, 60]
+    assert sorted(wall[:30]) == list(range(30)) and sorted(wall[30:]) == list(range(30, 60))
+    # 40 disks piled into one spot: 780 pairs > 8 * 40 + 16
+    pos = np.random.default_rng(0).uniform(0, 0.1, (40, 2))
+    start, nbr, ht, hr = kernels.build_pair_list(pos, np.full(40, 0.5), 0.05, empty,
+                                                 np.zeros(0, np.int64), np.zeros(0),
+                                                 np.zeros(0), np.full(40, -1))
+    assert start[-1] == 40 * 39 // 2
+    assert all(list(nbr[start[i]:start[i + 1]]) == list(range(i + 1, 40)) for i in range(40))

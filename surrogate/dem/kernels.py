@@ -119,6 +119,14 @@ def _cell_grid(pos, cell_size):
 
 
 @njit(cache=True)
+def _doubled(values, used):
+    """``values`` with twice the room, its first ``used`` entries kept (CSR growth)."""
+    grown = np.empty(2 * values.shape[0], dtype=values.dtype)
+    grown[:used] = values[:used]
+    return grown
+
+
+@njit(cache=True)
 def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_to_old):
     """Half Verlet list (CSR, neighbours sorted) with contact history carried over.
 
@@ -128,8 +136,7 @@ def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_t
     """
     n = pos.shape[0]
     start = np.zeros(n + 1, dtype=np.int64)
-    capacity = 8 * n + 16
-    nbr = np.empty(capacity, dtype=np.int64)
+    nbr = np.empty(8 * n + 16, dtype=np.int64)
     if n == 0:
         return start, nbr[:0], np.zeros(0), np.zeros(0)
     rmax = radius.max()
@@ -150,11 +157,8 @@ def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_t
                     dy = pos[i, 1] - pos[j, 1]
                     cut = radius[i] + radius[j] + skin
                     if dx * dx + dy * dy < cut * cut:
-                        if k == capacity:
-                            capacity *= 2
-                            grown = np.empty(capacity, dtype=np.int64)
-                            grown[:k] = nbr[:k]
-                            nbr = grown
+                        if k == nbr.shape[0]:
+                            nbr = _doubled(nbr, k)
                         # insertion keeps this disk's neighbours sorted
                         p = k
                         while p > first and nbr[p - 1] > j:
@@ -199,8 +203,7 @@ def build_wall_list(pos, radius, skin, walls, old_start, old_wall, old_ht, old_h
     n = pos.shape[0]
     nw = walls.shape[0]
     start = np.zeros(n + 1, dtype=np.int64)
-    capacity = n + 16
-    wall = np.empty(capacity, dtype=np.int64)
+    wall = np.empty(n + 16, dtype=np.int64)
     k = 0
     for i in range(n):
         for w in range(nw):
@@ -210,11 +213,8 @@ def build_wall_list(pos, radius, skin, walls, old_start, old_wall, old_ht, old_h
             dy = pos[i, 1] - cy
             cut = radius[i] + skin
             if dx * dx + dy * dy < cut * cut:
-                if k == capacity:
-                    capacity *= 2
-                    grown = np.empty(capacity, dtype=np.int64)
-                    grown[:k] = wall[:k]
-                    wall = grown
+                if k == wall.shape[0]:
+                    wall = _doubled(wall, k)
                 wall[k] = w
                 k += 1
         start[i + 1] = k
