@@ -56,6 +56,7 @@ import numpy as np
 from numba import njit
 
 from cosim.errors import ValidationError, check_finite_range
+from cosim.numerics import rows_times_transpose
 from cosim.sizes import N_CLASSES
 
 METHODS = ("exponential", "explicit")
@@ -100,10 +101,10 @@ def apply_fragmentation(f_rows, fragmentation_map) -> np.ndarray:
     if f.shape[-1:] != (N_CLASSES,):
         raise ValidationError("f_rows", f"an array with last dimension {N_CLASSES}",
                               f"got shape {f.shape}")
-    return f @ m.T
+    return rows_times_transpose(f, m)
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True)
 def _exponential_kernel(x, hardness, rate, daughter_by_source, escape, dt, out, escaped):
     n, nc = x.shape
     inflow = np.empty(nc)

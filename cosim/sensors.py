@@ -20,6 +20,7 @@ import numba
 import numpy as np
 
 from cosim.errors import ValidationError
+from cosim.numerics import weighted_column_sums
 from cosim.sizes import d_passing
 
 
@@ -78,7 +79,7 @@ def observe(store, attribute: str, *, box: Box | None = None, owner: int | None 
         if slots is not None:
             mass, columns = mass[slots], columns[slots]
         total = float(mass.sum())
-        weighted = mass @ columns
+        weighted = weighted_column_sums(mass, columns)
     mean = weighted / total if total > 0 else np.full(columns.shape[1], np.nan)
     return float(mean[0]) if np.ndim(values) == 1 else mean
 

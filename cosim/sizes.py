@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from cosim.errors import ValidationError
+from cosim.numerics import rows_times_transpose
 
 N_CLASSES = 16
 """Number of size classes N_d."""
@@ -116,7 +117,7 @@ def d_passing(f, fraction: float) -> np.ndarray:
 
 def mean_diameter(f) -> np.ndarray:
     """Mean particle diameter <d> = d . f [m] (paper, same section)."""
-    return np.asarray(f, dtype=np.float64) @ DIAMETERS
+    return rows_times_transpose(f, DIAMETERS[None, :])[..., 0]
 
 
 def fractions_from_cdf(cdf_at_upper_edges) -> np.ndarray:

@@ -21,6 +21,8 @@ Events: "enter" at loading, "exit" at discharge (asset = belt name).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from cosim.assets import Asset, Plant
@@ -54,7 +56,7 @@ class BeltConveyor(Asset):
         super().__init__(name, plant, location=start)
         self.start = np.asarray(start, dtype=float)
         self.end = np.asarray(end, dtype=float)
-        self.length = float(np.linalg.norm(self.end - self.start) if length is None else length)
+        self.length = float(math.dist(self.end, self.start) if length is None else length)
         if not self.length > 0:
             raise ValidationError(f"{name}.length", "> 0 m", f"got {self.length!r}")
         if not bin_length > 0:
@@ -62,7 +64,7 @@ class BeltConveyor(Asset):
         self.speed = float(speed)
         self.bin_length = float(bin_length)
         self.downstream = downstream
-        self._direction = (self.end - self.start) / max(np.linalg.norm(self.end - self.start),
+        self._direction = (self.end - self.start) / max(math.dist(self.end, self.start),
                                                         1e-12)
         self._travel = 0.0
         self._ids = np.empty(0, dtype=np.uint64)

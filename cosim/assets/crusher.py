@@ -42,6 +42,7 @@ import numpy as np
 from cosim.assets import Asset, AssetSensors, Plant
 from cosim.comminution import apply_fragmentation
 from cosim.master import CosimulationError
+from cosim.numerics import weighted_column_sums
 
 EMPTY_IDS = np.empty(0, dtype=np.uint64)
 
@@ -107,7 +108,8 @@ class JawCrusher(Asset):
         if slots.size:
             mass = store.mass[slots]
             self._zone_mass = float(mass.sum())
-            self._zone_hardness_mass = (mass * store.hardness[slots]) @ store.f[slots]
+            self._zone_hardness_mass = weighted_column_sums(mass * store.hardness[slots],
+                                                            store.f[slots])
         else:
             self._zone_mass = 0.0
             self._zone_hardness_mass = np.zeros(16)

@@ -27,6 +27,7 @@ import numpy as np
 from cosim.assets import EVENT_FIELDS, Asset, AssetSensors, Plant
 from cosim.comminution import mill_step
 from cosim.master import CosimulationError
+from cosim.numerics import weighted_column_sums
 
 OPERATOR_INPUTS = ("breakage_rate", "daughter_fraction", "escape_rate")
 
@@ -115,7 +116,7 @@ class Mill(Asset):
             self.plant.mass_out += escaped_total
             ground_out = new_mass < self.product_threshold
             kept = ~ground_out
-            self._charge = new_mass[kept] @ new_f[kept]
+            self._charge = weighted_column_sums(new_mass[kept], new_f[kept])
             if ground_out.any() or t_end >= self._next_event - 1e-9:
                 escaped_total += self._report_product(slots, ground_out, t_end)
             if ground_out.any():        # removal moved rows: look the slots up again

@@ -26,6 +26,7 @@ to the crusher at the end of dumping.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,9 +82,9 @@ class HaulTruck(Asset):
         for source in self.route:
             loading = np.asarray(source.location, dtype=float)
             self._stages += [
-                _Stage("drive", np.linalg.norm(loading - previous) / self.speed, previous, loading),
+                _Stage("drive", math.dist(loading, previous) / self.speed, previous, loading),
                 _Stage("load", float(load_time), loading, loading, source),
-                _Stage("drive", np.linalg.norm(dump_point - loading) / self.speed, loading,
+                _Stage("drive", math.dist(dump_point, loading) / self.speed, loading,
                        dump_point),
                 _Stage("dump", float(dump_time), dump_point, dump_point),
             ]

@@ -48,11 +48,13 @@ import math
 import numpy as np
 from numba import njit
 
-# fastmath lets LLVM reorder float arithmetic; the compiled code is still the
-# same on every run, so results stay deterministic and restarts bit-for-bit.
-# error_model="numpy" drops the zero-division checks (distances are > 0 for
-# every overlapping pair that reaches a division).
-HOT = {"cache": True, "fastmath": True, "error_model": "numpy"}
+from cosim.numerics import HOT_JIT
+
+# fastmath (off with MINETWIN_REPRODUCIBLE=1, cosim.numerics) lets LLVM reorder
+# float arithmetic: the same on every run of one machine, so restarts stay bit for
+# bit, but not across instruction sets. error_model="numpy" drops the zero-division
+# checks (distances are > 0 for every overlapping pair that reaches a division).
+HOT = HOT_JIT
 
 # indices into the ``params`` vector handed to the kernels
 P_KN, P_KT, P_CN, P_CT, P_MU, P_MUR, P_KR, P_COH, P_G = range(9)

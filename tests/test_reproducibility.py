@@ -1,0 +1,73 @@
+"""A seeded FIFO or mixing mine run is bitwise the same on every x86-64 machine.
+
+The digests below were recorded with
+``minetwin simulate examples/step_response.toml --until 900 --seed 1 --storage-model M``
+and ``_digest`` on an AMD EPYC; the same run with another OpenBLAS kernel
+(``OPENBLAS_CORETYPE=Prescott``), numba compiling for another CPU
+(``NUMBA_CPU_NAME=generic``) and glibc's non-FMA maths
+(``GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2_Usable,-FMA_Usable,-AVX_Usable``) gives the
+same digests, which is what ``cosim.numerics`` is for. A change to a model changes
+them on purpose: rerun ``python tests/test_reproducibility.py`` and paste its output.
+"""
+
+import hashlib
+import os
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIO = ROOT / "examples" / "step_response.toml"
+MINETWIN = str(Path(sys.executable).with_name("minetwin"))
+
+DIGESTS = {
+    "fifo": ("616dfd1b055b4c70a0c6e5f40102e8524f1704722a3179567b147321495194e8",
+             "32488d359f0fe390c041bbbb4bccbf3cc5661fdb755820fc8dd8eeeeae36a90c"),
+    "mixing": ("9d976cacf0fee3b718a4e2ddc84b00f8e900b2cf50432aeb0352d3f270c475f9",
+               "d8ecb9b5b9c2fc28dfe8c901a1ad609727a560aeab50ce1cdae34d76bdc911db"),
+}
+"""(events, time series) SHA-256 digests per storage model."""
+
+OTHER_CPU = {"OPENBLAS_CORETYPE": "Prescott", "NUMBA_CPU_NAME": "generic",
+             "GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX2_Usable,-FMA_Usable,-AVX_Usable"}
+
+
+def _digest(out: Path) -> tuple[str, str]:
+    """SHA-256 of every event-store row in table and row order, and of the time series."""
+    events = hashlib.sha256()
+    with sqlite3.connect(f"file:{out / 'events.sqlite'}?mode=ro", uri=True) as con:
+        tables = [name for (name,) in con.execute(
+            "SELECT name FROM sqlite_master WHERE type = 'table' ORDER BY name")]
+        for table in tables:
+            for row in con.execute(f"SELECT * FROM {table} ORDER BY rowid"):
+                events.update(repr(row).encode())
+    series = pd.read_parquet(out / "timeseries.parquet")
+    rows = pd.util.hash_pandas_object(series, index=True).to_numpy().tobytes()
+    columns = "\0".join(series.columns).encode()
+    return events.hexdigest(), hashlib.sha256(columns + rows).hexdigest()
+
+
+def _run(model: str, out: Path, env=None) -> tuple[str, str]:
+    subprocess.run([MINETWIN, "simulate", str(SCENARIO), "--until", "900", "--seed", "1",
+                    "--storage-model", model, "--out", str(out), "--quiet"],
+                   check=True, capture_output=True, env={**os.environ, **(env or {})})
+    return _digest(out)
+
+
+@pytest.mark.parametrize("model", sorted(DIGESTS))
+def test_seeded_mine_run_has_the_recorded_digest_on_this_cpu_and_another(model, tmp_path):
+    here = _run(model, tmp_path / "here")
+    assert here == DIGESTS[model], f"{model}: {here} (rerun this file to re-record)"
+    assert _run(model, tmp_path / "other", OTHER_CPU) == here
+
+
+if __name__ == "__main__":
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        for name in sorted(DIGESTS):
+            print(f'    "{name}": {_run(name, Path(folder) / name)!r},')
