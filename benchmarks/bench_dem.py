@@ -30,7 +30,6 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import re  # noqa: E402
 import shutil  # noqa: E402
 import subprocess  # noqa: E402
@@ -41,6 +40,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from cosim import jsonio
 from surrogate.dem import Dem, DemConfig, kernels  # noqa: E402
 from surrogate.dem.builders import packed_pile, settle  # noqa: E402
 
@@ -239,7 +239,7 @@ def main(argv=None) -> int:
                                                      / theirs["particle_steps_per_cpu_s"])
     else:
         result["lammps"] = "not installed" if not args.no_lammps else "skipped"
-    print(json.dumps(result, indent=2))
+    print(jsonio.dumps(result, indent=2))
     return 0
 
 

@@ -22,13 +22,12 @@ Prints one JSON object (progress on stderr):
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 
 import numpy as np
 
-from cosim import sizes
+from cosim import jsonio, sizes
 from cosim.comminution import mill_step_mass
 from cosim.fmu import CRUSHER_INTERFACE, MILL_INTERFACE, FmuComponent, fmu_path
 from cosim.master import Component, Master
@@ -69,10 +68,11 @@ def _inputs(model):
 
 def bench_bare_fmpy(path, inputs: dict, steps: int, dt: float = 0.5) -> float:
     """Seconds per step of set inputs + doStep + get outputs through fmpy's slave methods."""
+    import shutil
+
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
     from fmpy.fmi3 import FMU3Slave
-    import shutil
 
     md = read_model_description(str(path))
     unzipdir = extract(str(path))
@@ -210,7 +210,7 @@ def main(argv=None) -> int:
     operator["note"] = ("us_per_particle_step is process CPU time (best of 5); wall time is "
                         "also given and is inflated when other processes share the cores")
     result["mill_operator"] = operator
-    print(json.dumps(result, indent=1))
+    print(jsonio.dumps(result, indent=1))
     return 0
 
 

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import cProfile
 import io
-import json
 import os
 import pstats
 import sqlite3
@@ -31,6 +30,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from cosim import jsonio  # noqa: E402
 from cosim.scenario import build, load, run_scenario  # noqa: E402
 
 SCENARIO = ROOT / "examples" / "paper_scale.toml"
@@ -94,7 +94,7 @@ def main() -> int:
     if args.profile_until > 0:
         result["profile_fifo"] = {"simulated_s": args.profile_until,
                                   "top_by_own_time": profile(config, args.profile_until)}
-    print(json.dumps(result, indent=2))
+    print(jsonio.dumps(result, indent=2))
     return 0
 
 

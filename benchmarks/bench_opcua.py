@@ -12,12 +12,12 @@ and the exchange is audited. Prints one JSON object.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from cosim import jsonio
 from opcua_server.audit import audit
 from opcua_server.harness import ServerProcess, StockpileProcess, drain_and_stop, prepare_state
 
@@ -60,7 +60,7 @@ def main(argv=None) -> int:
     out["passed"] = (out["bins_per_wall_s"] >= 100.0 and out["tracking_ids_lost"] == 0
                      and out["tracking_ids_duplicated"] == 0
                      and out["mass_balance_rel_error"] < 1e-9)
-    print(json.dumps(out, indent=2))
+    print(jsonio.dumps(out, indent=2))
     return 0 if out["passed"] else 1
 
 

@@ -12,13 +12,13 @@ bytes per endpoint (progress on stderr).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 import urllib.request
 
 import numpy as np
 
+from cosim import jsonio
 from surrogate.rest import serve_in_thread
 from surrogate.stockpile import StockpileAsset
 
@@ -53,7 +53,7 @@ def main(argv=None) -> int:
             print(f"{path}: {results[path]}", file=sys.stderr)
     finally:
         server.stop()
-    print(json.dumps({"particles": int(len(asset.particles)),
+    print(jsonio.dumps({"particles": int(len(asset.particles)),
                       "held_mass_kg": float(asset.particles.mass.sum()),
                       "repeat": args.repeat, "endpoints": results}))
     return 0

@@ -14,12 +14,13 @@ simulated second and the real-time factor.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
+
+from cosim import jsonio
 
 
 def main(argv=None) -> int:
@@ -72,7 +73,7 @@ def main(argv=None) -> int:
             wall += time.perf_counter() - tic
             store.remove(leaving)
     per_s = wall / (steps * doe.CONTROL_STEP)
-    print(json.dumps({"benchmark": "rom_stockpile_throughput", "surface": args.surface,
+    print(jsonio.dumps({"benchmark": "rom_stockpile_throughput", "surface": args.surface,
                       "particles_start": count,
                       "particles_end": int(storage.held_ids().size),
                       "simulated_s": steps * doe.CONTROL_STEP, "wall_s": wall,

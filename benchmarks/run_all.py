@@ -16,6 +16,8 @@ import sys
 import time
 from pathlib import Path
 
+from cosim import jsonio
+
 HERE = Path(__file__).resolve().parent
 
 
@@ -46,7 +48,7 @@ def main(argv=None) -> int:
             print(f"FAIL {name} ({wall:.0f} s): exit {result.returncode}\n"
                   f"{result.stderr[-2000:]}", file=sys.stderr)
             continue
-        (args.out / f"{name}.json").write_text(json.dumps(data, indent=2))
+        jsonio.write(args.out / f"{name}.json", data, indent=2)
         print(f"ok   {name} ({wall:.0f} s) -> {args.out / (name + '.json')}")
     return 1 if failed else 0
 

@@ -22,6 +22,7 @@ class ValidationError(ValueError):
     def __init__(self, field: str, allowed: str, detail: str = ""):
         self.field = field
         self.allowed = allowed
+        self.detail = detail
         message = f"{field}: must be {allowed}"
         if detail:
             message += f" ({detail})"

@@ -14,19 +14,34 @@ The store is one SQLite file (WAL mode) with two tables:
     origin_block, f (the 16 size fractions as a float64 BLOB)
 
 Writes are buffered and inserted in batches; read back as pandas DataFrames
-(by particle id, asset, time range or type) and export to Parquet.
+(by particle id, asset, time range or type) and export to Parquet. A store
+opened with ``readonly=True`` never writes to its file. Another process holding
+the database's lock is waited for up to ``timeout`` seconds; a store that cannot
+be written or read raises ``EventStoreError`` naming the file, never an asset.
 """
 
 from __future__ import annotations
 
 import sqlite3
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from cosim.errors import ValidationError
+from cosim.master import CosimulationError
 from cosim.sizes import N_CLASSES
+
+MAX_ID = 2 ** 63 - 1
+"""Largest particle id the store holds (SQLite integers are signed 64-bit)."""
+
+
+class EventStoreError(CosimulationError):
+    """The event store's file cannot be written or read (locked, not a database,
+    truncated, unwritable); the message names the file."""
+
+    blames_component = False
 
 EVENT_TYPES = ("appear", "load", "dump", "enter", "exit", "pass", "product")
 """Event types: material appears at a source, is loaded into or dumped from
@@ -77,21 +92,59 @@ class EventStore:
         Database file; ``":memory:"`` for a throw-away store.
     batch_rows : int
         Particle rows buffered before an insert (default 50,000).
+    readonly : bool
+        Open an existing store for reading only (default False): the file is
+        never written, and a file that is not an event store is refused.
+    timeout : float
+        Seconds to wait for another process's lock before failing (default 30 s).
     """
 
-    def __init__(self, path, batch_rows: int = 50_000):
+    def __init__(self, path, batch_rows: int = 50_000, *, readonly: bool = False,
+                 timeout: float = 30.0):
         self.path = str(path)
-        self._db = sqlite3.connect(self.path)
-        if self.path != ":memory:":
-            self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA synchronous=NORMAL")
-        self._db.executescript(_SCHEMA)
+        self.readonly = bool(readonly)
+        self.timeout = float(timeout)
         self._batch_rows = int(batch_rows)
         self._event_rows: list[tuple] = []
         self._particle_rows: list[tuple] = []
-        last = self._db.execute("SELECT MAX(event_id) FROM events").fetchone()[0]
+        self._indexed = self.readonly
+        with self._errors("open"):
+            if self.readonly:
+                self._db = self._open_readonly()
+            else:
+                self._db = sqlite3.connect(self.path, timeout=self.timeout)
+                if self.path != ":memory:":
+                    self._db.execute("PRAGMA journal_mode=WAL")
+                self._db.execute("PRAGMA synchronous=NORMAL")
+                self._db.executescript(_SCHEMA)
+            last = self._db.execute("SELECT MAX(event_id) FROM events").fetchone()[0]
         self._next_event_id = 0 if last is None else last + 1
-        self._indexed = False
+
+    def _open_readonly(self):
+        file = Path(self.path)
+        if not file.is_file():
+            raise EventStoreError(f"event store {self.path}: no such file")
+        if file.stat().st_size == 0:
+            raise EventStoreError(f"event store {self.path}: empty file, not an event store")
+        db = sqlite3.connect(f"{file.resolve().as_uri()}?mode=ro", uri=True,
+                             timeout=self.timeout)
+        tables = {name for (name,) in db.execute(
+            "SELECT name FROM sqlite_master WHERE type = 'table'")}
+        if not {"events", "event_particles"} <= tables:
+            db.close()
+            raise EventStoreError(f"event store {self.path}: an SQLite file without the "
+                                  "events and event_particles tables, not an event store")
+        return db
+
+    @contextmanager
+    def _errors(self, action: str):
+        """Turn SQLite's errors while doing ``action`` into an ``EventStoreError``."""
+        try:
+            yield
+        except sqlite3.Error as exc:
+            hint = (f" (waited {self.timeout:g} s for another process's lock)"
+                    if "locked" in str(exc) or "busy" in str(exc) else "")
+            raise EventStoreError(f"event store {self.path}: cannot {action}: {exc}{hint}") from exc
 
     # ----------------------------------------------------------------- write
     def record(self, type: str, asset: str, time: float, particles, slots=None,
@@ -122,8 +175,14 @@ class EventStore:
         if not np.all(np.isfinite(times)):
             raise ValidationError("time", "finite seconds",
                                   f"got {times[~np.isfinite(times)][0]!r}")
+        if self.readonly:
+            raise EventStoreError(f"event store {self.path}: opened read-only")
         counts = np.asarray(counts, dtype=np.int64)
-        ids = np.asarray(batch["id"], dtype=np.int64)
+        raw_ids = np.asarray(batch["id"])
+        if raw_ids.size and (raw_ids.min() < 0 or raw_ids.max() > MAX_ID):
+            raise ValidationError("id", f"in [0, {MAX_ID}] (SQLite's signed 64-bit integers)",
+                                  f"got {raw_ids.max() if raw_ids.max() > MAX_ID else raw_ids.min()}")
+        ids = raw_ids.astype(np.int64)
         if counts.sum() != ids.size:
             raise ValidationError("counts", f"summing to the batch size {ids.size}",
                                   f"sum {int(counts.sum())}")
@@ -151,7 +210,7 @@ class EventStore:
         """Write buffered events in one transaction."""
         if not self._event_rows and not self._particle_rows:
             return
-        with self._db:
+        with self._errors("write"), self._db:
             self._db.executemany("INSERT INTO events VALUES (?,?,?,?,?,?,?,?)",
                                  self._event_rows)
             self._db.executemany(
@@ -161,10 +220,12 @@ class EventStore:
         self._particle_rows.clear()
 
     def close(self) -> None:
-        """Flush, index and close the file."""
-        self.flush()
-        self._ensure_indexes()
-        self._db.close()
+        """Flush, index and close the file (closed even if the flush fails)."""
+        try:
+            self.flush()
+            self._ensure_indexes()
+        finally:
+            self._db.close()
 
     def __enter__(self):
         return self
@@ -176,7 +237,8 @@ class EventStore:
         # Indexes are built once, after the bulk of the inserts, because
         # maintaining them during inserts halves the write rate.
         if not self._indexed:
-            self._db.executescript(_INDEXES)
+            with self._errors("index"):
+                self._db.executescript(_INDEXES)
             self._indexed = True
 
     # ------------------------------------------------------------------ read
@@ -187,8 +249,9 @@ class EventStore:
 
         where, args = self._filters(type, asset, t0, t1, prefix="")
         self.flush()
-        return pd.read_sql_query(f"SELECT * FROM events{where} ORDER BY event_id",
-                                 self._db, params=args)
+        with self._errors("read"):
+            return pd.read_sql_query(f"SELECT * FROM events{where} ORDER BY event_id",
+                                     self._db, params=args)
 
     def particles(self, *, particle_ids=None, type: str | None = None,
                   asset: str | None = None, t0: float | None = None,
@@ -204,6 +267,10 @@ class EventStore:
         where, args = self._filters(type, asset, t0, t1, prefix="e.")
         if particle_ids is not None:
             ids = [int(i) for i in np.atleast_1d(particle_ids)]
+            bad = [i for i in ids if not 0 <= i <= MAX_ID]
+            if bad:
+                raise ValidationError("particle_id", f"an integer in [0, {MAX_ID}]",
+                                      f"got {bad[0]}")
             self._db.execute("CREATE TEMP TABLE IF NOT EXISTS wanted (particle_id INTEGER)")
             self._db.execute("DELETE FROM wanted")
             self._db.executemany("INSERT INTO wanted VALUES (?)", [(i,) for i in ids])
@@ -213,7 +280,8 @@ class EventStore:
                  "p.x, p.y, p.z, p.grade, p.hardness, p.origin_block, p.f "
                  "FROM event_particles p JOIN events e ON e.event_id = p.event_id"
                  f"{where} ORDER BY e.time, e.event_id, p.particle_id")
-        frame = pd.read_sql_query(query, self._db, params=args)
+        with self._errors("read"):
+            frame = pd.read_sql_query(query, self._db, params=args)
         blobs = frame.pop("f")
         fractions = (np.frombuffer(b"".join(blobs), dtype=np.float64).reshape(-1, N_CLASSES)
                      if len(blobs) else np.empty((0, N_CLASSES)))

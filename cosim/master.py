@@ -37,6 +37,10 @@ from cosim.errors import ValidationError
 class CosimulationError(RuntimeError):
     """A component failed during ``Master.run``; recorded data stays readable."""
 
+    blames_component = True
+    """The master names the component that was stepping; False for failures of a shared
+    resource (the event store) that any component may hit first."""
+
 
 class Component:
     """Base class of everything the master steps.
@@ -151,6 +155,8 @@ class Master:
                     try:
                         component.step(t, self.step)
                     except Exception as exc:
+                        if isinstance(exc, CosimulationError) and not exc.blames_component:
+                            raise
                         raise CosimulationError(
                             f"{component.name} failed at t = {t:g} s: {exc}") from exc
                     latest[id(component)] = component.outputs()

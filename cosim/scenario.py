@@ -10,7 +10,8 @@ the file's comments cite the paper. See ``examples/step_response.toml``.
 Tables and keys (defaults in brackets):
 
 ``[simulation]`` until_s [1200], step_s [0.5], record_every_s [= step_s],
-    seed [1], sensor_window_s [30]. The communication step 0.5 s resolves the
+    seed [1], sensor_window_s [30], event_store_timeout_s [30]: how long a write
+    waits for another process that holds the event store's lock. The communication step 0.5 s resolves the
     fastest material dynamics of the plant: a particle stays about 1 s in the
     crusher zone (785 kg at 1 t/s) and the trucks dump every 27.5 s; the FMUs'
     physics (crusher torque, mill speed with a 5 s time constant, mill
@@ -45,17 +46,23 @@ from __future__ import annotations
 import copy
 import importlib
 import inspect
-import json
 import time as wallclock
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from cosim import jsonio
 from cosim.errors import ValidationError
+from cosim.storage import check_storage_options
 
 REQUIRED = object()
+MAX_LENGTH_M = 100_000.0
+"""Longest ore body, face, belt or block [m] a scenario may set (100 km)."""
+MAX_BLOCKS = 1_000_000
+"""Most block-model cells along a source, and bins along a belt (each costs memory)."""
+MAX_PARTICLES_PER_LOAD = 100_000
+"""Most pseudo-particles in one truckload (payload_kg / particle_mass_kg; paper: ~150)."""
 WALL_CLOCK_FIELDS = ("wall_s", "realtime_factor")
 """Summary fields that depend on the machine, not on the scenario and seed."""
 
@@ -72,6 +79,8 @@ def _number(table: dict, key: str, path: str, default=REQUIRED, *, low=None, hig
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ValidationError(name, f"a number{' [' + unit + ']' if unit else ''}",
                               f"got {value!r}")
+    if integer and not float(value).is_integer():
+        raise ValidationError(name, "an integer", f"got {value!r}")
     value = int(value) if integer else float(value)
     parts = ["finite"]
     if low is not None:
@@ -161,12 +170,19 @@ def _source(table: dict, path: str) -> dict:
     out["ore_body_origin_m"] = _vector(table, "ore_body_origin_m", path, out["loading_point_m"])
     out["grade"] = _number(table, "grade", path, low=0.0, high=1.0)
     out["hardness"] = _hardness(table, path)
-    out["length_m"] = _number(table, "length_m", path, low=0.0, low_open=True, unit="m")
-    out["face_width_m"] = _number(table, "face_width_m", path, low=0.0, low_open=True, unit="m")
+    out["length_m"] = _number(table, "length_m", path, low=0.0, low_open=True,
+                              high=MAX_LENGTH_M, unit="m")
+    out["face_width_m"] = _number(table, "face_width_m", path, low=0.0, low_open=True,
+                                  high=MAX_LENGTH_M, unit="m")
     out["face_height_m"] = _number(table, "face_height_m", path, low=0.0, low_open=True,
-                                   unit="m")
+                                   high=MAX_LENGTH_M, unit="m")
     out["block_length_m"] = _number(table, "block_length_m", path, 1.0, low=0.0,
-                                    low_open=True, unit="m")
+                                    low_open=True, high=MAX_LENGTH_M, unit="m")
+    smallest_block = out["length_m"] / MAX_BLOCKS
+    if out["block_length_m"] < smallest_block:
+        raise ValidationError(f"{path}.block_length_m",
+                              f">= {smallest_block:g} m (length_m / {MAX_BLOCKS:,} blocks)",
+                              f"got {out['block_length_m']!r}")
     out["density_kg_m3"] = _number(table, "density_kg_m3", path, 2700.0, low=100.0,
                                    high=20000.0, unit="kg/m^3")
     out["particle_mass_kg"] = _number(table, "particle_mass_kg", path, 100.0, low=0.0,
@@ -189,11 +205,13 @@ def _source(table: dict, path: str) -> dict:
 
 def _conveyor(table: dict, path: str) -> dict:
     _no_unknown(table, ("length_m", "speed_m_s", "bin_length_m"), path)
-    return {"length_m": _number(table, "length_m", path, low=0.0, low_open=True, unit="m"),
+    length = _number(table, "length_m", path, low=0.0, low_open=True, high=MAX_LENGTH_M,
+                     unit="m")
+    return {"length_m": length,
             "speed_m_s": _number(table, "speed_m_s", path, 2.0, low=0.0, high=20.0,
                                  unit="m/s"),
-            "bin_length_m": _number(table, "bin_length_m", path, 1.0, low=0.0, low_open=True,
-                                    unit="m")}
+            "bin_length_m": _number(table, "bin_length_m", path, min(1.0, length),
+                                    low=length / MAX_BLOCKS, high=length, unit="m")}
 
 
 def _parameters(table: dict, path: str) -> dict:
@@ -223,8 +241,8 @@ def validate(raw: dict) -> dict:
                       "mill", "reference"), "")
     cfg: dict = {}
     sim = _table(raw, "simulation", "", {})
-    _no_unknown(sim, ("until_s", "step_s", "record_every_s", "seed", "sensor_window_s"),
-                "simulation")
+    _no_unknown(sim, ("until_s", "step_s", "record_every_s", "seed", "sensor_window_s",
+                      "event_store_timeout_s"), "simulation")
     step = _number(sim, "step_s", "simulation", 0.5, low=1e-3, high=5.0, unit="s")
     cfg["simulation"] = {
         "until_s": _number(sim, "until_s", "simulation", 1200.0, low=0.0, high=1e7, unit="s"),
@@ -234,6 +252,8 @@ def validate(raw: dict) -> dict:
         "seed": _number(sim, "seed", "simulation", 1, low=0, high=2**63 - 1, integer=True),
         "sensor_window_s": _number(sim, "sensor_window_s", "simulation", 30.0, low=0.0,
                                    high=3600.0, unit="s"),
+        "event_store_timeout_s": _number(sim, "event_store_timeout_s", "simulation", 30.0,
+                                         low=0.0, high=3600.0, unit="s"),
     }
     sources = _table(raw, "sources", "")
     if not sources:
@@ -267,6 +287,15 @@ def validate(raw: dict) -> dict:
                                    high=3600.0, unit="s"),
             "start_s": _number(truck, "start_s", path, 0.0, low=0.0, high=1e7, unit="s"),
         })
+    for k, truck in enumerate(cfg["trucks"]):
+        for name in truck["route"]:
+            lightest = truck["payload_kg"] / MAX_PARTICLES_PER_LOAD
+            if cfg["sources"][name]["particle_mass_kg"] < lightest:
+                raise ValidationError(
+                    f"sources.{name}.particle_mass_kg",
+                    f">= {lightest:g} kg (trucks[{k}].payload_kg / "
+                    f"{MAX_PARTICLES_PER_LOAD:,} particles per load)",
+                    f"got {cfg['sources'][name]['particle_mass_kg']!r}")
     names = [t["name"] for t in cfg["trucks"]]
     if len(set(names)) != len(names):
         raise ValidationError("trucks.name", "unique", f"got {names}")
@@ -314,6 +343,8 @@ def validate(raw: dict) -> dict:
                                low_open=True, high=1e9, unit="kg"),
         "discharge": rows,
     }
+    check_storage_options(cfg["stockpile"]["model"], cfg["stockpile"]["options"],
+                          "stockpile.options")
     cfg["stockpile"]["initial_mass_kg"] = _number(
         pile, "initial_mass_kg", "stockpile", 0.0, low=0.0, high=cfg["stockpile"]["capacity_kg"],
         unit="kg")
@@ -333,19 +364,47 @@ def validate(raw: dict) -> dict:
                                      high=60.0, unit="s"),
         "parameters": _parameters(mill, "mill"),
     }
+    for asset in ("crusher", "mill"):
+        _check_fmu_parameters(cfg[asset]["fmu"], cfg[asset]["parameters"], asset)
     return cfg
+
+
+def _check_fmu_parameters(fmu: str, parameters: dict, path: str) -> None:
+    """Refuse parameters the FMU does not have, or values outside its declared min/max."""
+    if not parameters:
+        return
+    from fmpy import read_model_description
+
+    try:
+        description = read_model_description(_fmu_file(fmu, path))
+    except ValidationError:
+        raise
+    except Exception as exc:  # a missing or broken FMU is reported when it is loaded
+        del exc
+        return
+    declared = {v.name: v for v in description.modelVariables
+                if v.causality in ("parameter", "input") or v.variability == "tunable"}
+    for key, value in parameters.items():
+        name = f"{path}.parameters.{key}"
+        variable = declared.get(key)
+        if variable is None:
+            raise ValidationError(name, f"a parameter of {Path(_fmu_file(fmu, path)).name}: "
+                                  f"one of {sorted(declared)}", "unknown parameter")
+        unit = f" {variable.unit}" if getattr(variable, "unit", None) else ""
+        low, high = (None if v is None else float(v) for v in (variable.min, variable.max))
+        if (low is not None and value < low) or (high is not None and value > high):
+            bounds = " and ".join(part for part in (
+                f">= {low:g}{unit}" if low is not None else "",
+                f"<= {high:g}{unit}" if high is not None else "") if part)
+            raise ValidationError(name, f"{bounds} (the FMU's declared range)",
+                                  f"got {value!r}")
 
 
 def load(path) -> dict:
     """Read and validate a scenario TOML file."""
-    path = Path(path)
-    if not path.is_file():
-        raise ValidationError("scenario", "an existing TOML file", f"{str(path)!r} not found")
-    try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ValidationError("scenario", "valid TOML", f"{path}: {exc}") from None
-    return validate(raw)
+    from cosim.tomlfile import read_toml
+
+    return validate(read_toml(path, "scenario"))
 
 
 # ---------------------------------------------------------------------- build
@@ -430,7 +489,8 @@ def build(config: dict, *, seed: int | None = None, storage_model: str | None = 
     window = sim["sensor_window_s"]
     sample = sim["record_every_s"]      # virtual sensors sample at the recording interval
     rng = np.random.default_rng(sim["seed"])
-    events = EventStore(events_path) if events_path is not None else None
+    events = (EventStore(events_path, timeout=sim["event_store_timeout_s"])
+              if events_path is not None else None)
     plant = Plant(ParticleStore(capacity=4096), events, rng)
     master = Master(step=sim["step_s"], record_every=max(int(round(sim["record_every_s"]
                                                                    / sim["step_s"])), 1),
@@ -568,14 +628,18 @@ def summarize(simulation: Simulation) -> dict:
     return summary
 
 
-def write_outputs(simulation: Simulation, out_dir) -> dict:
-    """Write timeseries.parquet, summary.json and PNG plots to ``out_dir``; the summary."""
+def write_outputs(simulation: Simulation, out_dir, failure=None) -> dict:
+    """Write timeseries.parquet, summary.json and PNG plots to ``out_dir``; the summary.
+
+    After a failed run (``failure``) they hold what was recorded up to it, and the
+    summary's ``failed`` says why."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     series = simulation.timeseries
     series.to_parquet(out / "timeseries.parquet")
     summary = summarize(simulation)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    summary["failed"] = None if failure is None else str(failure)
+    jsonio.write(out / "summary.json", summary, indent=2, sort_keys=True)
     plot_overview(series, out / "overview.png")
     return summary
 
@@ -631,12 +695,22 @@ def run_scenario(config: dict, out_dir=None, *, until: float | None = None,
                        events_path=events_path, progress=progress)
     if before_run is not None:
         before_run(simulation)
+    from cosim.master import CosimulationError
+
     started = wallclock.perf_counter()
+    failure = None
     try:
         simulation.run(until)
+    except CosimulationError as exc:
+        failure = exc
     finally:
-        simulation.close()
+        try:
+            simulation.close()
+        except CosimulationError as exc:  # e.g. the event store: the other outputs still count
+            failure = failure or exc
     simulation.master.wall_s = wallclock.perf_counter() - started
-    summary = (write_outputs(simulation, out_dir) if out_dir is not None
+    summary = (write_outputs(simulation, out_dir, failure=failure) if out_dir is not None
                else summarize(simulation))
+    if failure is not None:
+        raise failure
     return simulation, summary

@@ -213,10 +213,31 @@ STORAGE_MODELS: dict[str, str] = {
 """Storage models by name, cheapest first; values are ``module:Class``."""
 
 
+def storage_class(name: str, field: str = "storage_model") -> type:
+    """The class of the storage model registered as ``name``."""
+    if name not in STORAGE_MODELS:
+        raise ValidationError(field, f"one of {list(STORAGE_MODELS)}", f"got {name!r}")
+    module, cls = STORAGE_MODELS[name].split(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def check_storage_options(name: str, options: dict, field: str = "options") -> None:
+    """Refuse keyword options that the storage model ``name`` does not take, naming them."""
+    import inspect
+
+    accepted = [p for p, spec in inspect.signature(storage_class(name)).parameters.items()
+                if spec.kind in (spec.KEYWORD_ONLY, spec.POSITIONAL_OR_KEYWORD)
+                and p not in ("self", "rng")]
+    for key in options:
+        if key not in accepted:
+            raise ValidationError(f"{field}.{key}", f"an option of the {name!r} storage model: "
+                                  f"one of {accepted}" if accepted else
+                                  f"absent: the {name!r} storage model takes no options",
+                                  "unknown option")
+
+
 def make_storage(name: str, **options) -> StorageModel:
     """Build the storage model called ``name`` with keyword ``options``."""
-    if name not in STORAGE_MODELS:
-        raise ValidationError("storage_model", f"one of {list(STORAGE_MODELS)}",
-                              f"got {name!r}")
-    module, cls = STORAGE_MODELS[name].split(":")
-    return getattr(importlib.import_module(module), cls)(**options)
+    cls = storage_class(name)
+    check_storage_options(name, {k: v for k, v in options.items() if k != "rng"})
+    return cls(**options)

@@ -23,13 +23,12 @@ to ``--out``:
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from cosim import sizes
+from cosim import jsonio, sizes
 from cosim.comminution import apply_fragmentation, mill_step_mass
 from cosim.fmu import CRUSHER_INTERFACE, MILL_INTERFACE, FmuComponent, fmu_path
 
@@ -131,8 +130,8 @@ def main(argv=None) -> int:
     steps = np.logspace(-4, 0, 17)
     result = study(steps, horizon=args.horizon, progress=lambda m: print(m, file=sys.stderr))
     plot(result, args.out / "mill_integrator_stability.png")
-    (args.out / "mill_integrator_stability.json").write_text(json.dumps(result, indent=1))
-    print(json.dumps({"png": str(args.out / "mill_integrator_stability.png"),
+    jsonio.write(args.out / "mill_integrator_stability.json", result, indent=1)
+    print(jsonio.dumps({"png": str(args.out / "mill_integrator_stability.png"),
                       "stability_limit_s": result["stability_limit_s"],
                       "exponential_max_error": max(result["exponential"]),
                       "explicit_diverged_above_s": min(

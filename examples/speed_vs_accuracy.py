@@ -40,12 +40,13 @@ Run (from the repository root; the first run builds the DEM data, about
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
+
+from cosim import jsonio
 
 DT_FACTORS = (0.25, 0.5, 2.0, 4.0, 6.0, 8.0)
 """DEM time steps run besides the default, as multiples of stable_dt; the
@@ -275,8 +276,8 @@ def main(argv=None) -> int:
               "reference_dt_factor": reference_factor,
               "reference_wall_s_per_simulated_s": fine_wall,
               "dem_noise_floor": floor, "points": points}
-    (out / "speed_vs_accuracy.json").write_text(json.dumps(result, indent=1))
-    print(json.dumps(result, indent=1))
+    jsonio.write(out / "speed_vs_accuracy.json", result, indent=1)
+    print(jsonio.dumps(result, indent=1))
 
     plot_ladder(result, out / "speed_vs_accuracy.png")
 

@@ -8,10 +8,10 @@ is a ``ValidationError`` naming the key and its allowed range.
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 from cosim.errors import ValidationError, check_finite_range
+from cosim.tomlfile import read_toml
 
 DEFAULT_CONFIG = Path(__file__).with_name("config") / "default.toml"
 DEFAULT_NODEMAP = Path(__file__).with_name("config") / "nodemap.toml"
@@ -28,13 +28,7 @@ def _merge(base: dict, override: dict) -> dict:
 
 
 def _read(path: Path, field: str) -> dict:
-    try:
-        with open(path, "rb") as handle:
-            return tomllib.load(handle)
-    except FileNotFoundError:
-        raise ValidationError(field, "an existing TOML file", f"{path} not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValidationError(field, "valid TOML", f"{path}: {exc}") from None
+    return read_toml(path, field)
 
 
 def _positive(section: dict, name: str, where: str) -> float:

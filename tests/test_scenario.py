@@ -54,6 +54,22 @@ def _broken(path, value):
     (("stockpile", "position_m"), [1.0], "stockpile.position_m", "2 or 3"),
     (("conveyors", "stockpile_to_mill", "length_m"), 0.0,
      "conveyors.stockpile_to_mill.length_m", "> 0"),
+    # sizes that set an allocation are bounded (each was a traceback or a memory error)
+    (("sources", "left", "length_m"), 1e308, "sources.left.length_m", "<= 100000 m"),
+    (("sources", "left", "block_length_m"), 1e-9, "sources.left.block_length_m",
+     "(length_m / 1,000,000 blocks)"),
+    (("sources", "left", "particle_mass_kg"), 1e-6, "sources.left.particle_mass_kg",
+     "trucks[0].payload_kg / 100,000 particles per load"),
+    (("conveyors", "crusher_to_stockpile", "length_m"), 1e308,
+     "conveyors.crusher_to_stockpile.length_m", "<= 100000 m"),
+    (("conveyors", "crusher_to_stockpile", "bin_length_m"), 1000.0,
+     "conveyors.crusher_to_stockpile.bin_length_m", "<= 120 m"),
+    # ... and so is everything else that was silently accepted
+    (("simulation", "seed"), 1.5, "simulation.seed", "an integer"),
+    (("stockpile", "options"), {"bogus": 1}, "stockpile.options.bogus", "no options"),
+    (("crusher", "parameters"), {"gap_width": -0.25}, "crusher.parameters.gap_width",
+     ">= 1e-06 m (the FMU's declared range)"),
+    (("crusher", "parameters"), {"gap": 0.25}, "crusher.parameters.gap", "'gap_width'"),
 ])
 def test_bad_values_name_the_key_and_the_allowed_range(path, value, field, allowed):
     with pytest.raises(ValidationError) as error:
@@ -104,6 +120,6 @@ def test_simulate_command_refuses_bad_input_with_exit_code_2(tmp_path):
     assert "sources.left.grade: must be finite and >= 0 and <= 1" in result.stderr
     result = _minetwin("simulate", str(EXAMPLE), "--out", str(tmp_path / "out"),
                        "--storage-model", "magic")
-    assert result.returncode == 2 and "stockpile.model" in result.stderr
+    assert result.returncode == 2 and "--storage-model: must be one of" in result.stderr
     assert _minetwin("simulate", "--help").returncode == 0
     assert _minetwin("reproduce", "--help").returncode == 0

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cosim import jsonio
 from cosim.analyses.tracking import occupancy_sum, residence_intervals, windowed_sums
 from cosim.errors import ValidationError
 from cosim.master import Component
@@ -346,5 +347,5 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
     failed = [f"{name}: no prediction could be compared" for name in curves
               if not np.isfinite(summary["feed_grade_prediction_mae"][name])]
     summary["checks_failed"] = failed
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    jsonio.write(out / "summary.json", summary, indent=2, sort_keys=True)
     return summary, failed

@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cosim import jsonio
 from cosim.analyses.tracking import F_COLUMNS, moving_average, occupancy_sum, windowed_sums
 from cosim.errors import ValidationError
 from cosim.sizes import d_passing
@@ -412,7 +413,6 @@ def plot(data: dict, out) -> list:
 
 def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int | None = None):
     """Run the quadratic-profile scenario and backtrack the grindability; (summary, failed)."""
-    import json
 
     from cosim.analyses.profile_run import output_folder, run_profile, scenario_config
 
@@ -432,5 +432,5 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
         failed.append(f"corr_grindability_vs_hardness = "
                       f"{summary['corr_grindability_vs_hardness']:.3f} > {CORR_LIMIT}")
     summary["checks_failed"] = failed
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    jsonio.write(out / "summary.json", summary, indent=2, sort_keys=True)
     return summary, failed

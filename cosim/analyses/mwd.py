@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 from scipy import optimize
 
-from cosim import blockmodel
+from cosim import blockmodel, jsonio
 from cosim.analyses.tracking import F_COLUMNS, occupancy_sum
 from cosim.errors import ValidationError
 from cosim.master import Component
@@ -374,10 +374,14 @@ def plot(run, data: dict, summary: dict, out) -> list:
 def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
               location_error: float | None = None, seed: int | None = None):
     """Run the quadratic-profile scenario and identify beta; (summary, failed checks)."""
-    import json
 
-    from cosim.analyses.profile_run import (MWD_BETA, MWD_LOCATION_ERROR_M, output_folder,
-                                            run_profile, scenario_config)
+    from cosim.analyses.profile_run import (
+        MWD_BETA,
+        MWD_LOCATION_ERROR_M,
+        output_folder,
+        run_profile,
+        scenario_config,
+    )
 
     out = output_folder(out_dir)
     error = MWD_LOCATION_ERROR_M if location_error is None else float(location_error)
@@ -394,5 +398,5 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
         failed.append(f"|beta_fit - {MWD_BETA}| = {abs(summary['beta_fit'] - MWD_BETA):.4f} "
                       f"> {tolerance}")
     summary["checks_failed"] = failed
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    jsonio.write(out / "summary.json", summary, indent=2, sort_keys=True)
     return summary, failed

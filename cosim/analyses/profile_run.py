@@ -25,6 +25,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cosim import jsonio
+
 SCENARIO = Path(__file__).resolve().parents[2] / "examples" / "hardness_profile.toml"
 MWD_BETA = 0.4
 """True exponent of s = h**beta (paper)."""
@@ -114,7 +116,7 @@ def run_profile(out_dir, *, until: float, config: dict, location_error: float =
     # what `minetwin simulate` writes, less its overview plot (seconds per run)
     simulation.timeseries.to_parquet(out / "timeseries.parquet")
     run_summary = summarize(simulation)
-    (out / "summary.json").write_text(json.dumps(run_summary, indent=2, sort_keys=True) + "\n")
+    jsonio.write(out / "summary.json", run_summary, indent=2, sort_keys=True)
     survey.table().to_parquet(out / "mwd.parquet")
     (out / "scenario.json").write_text(json.dumps(simulation.config, indent=1) + "\n")
     return load_run(out, run_summary)

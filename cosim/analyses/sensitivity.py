@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cosim import jsonio
 from cosim.analyses import grindability, mwd
 from cosim.errors import ValidationError
 
@@ -201,7 +202,6 @@ def plot(mwd_sweep: pd.DataFrame, grind_sweep: pd.DataFrame, out) -> list:
 
 def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int | None = None):
     """One quadratic-profile run, then both sweeps; (summary, failed checks)."""
-    import json
     import sys
 
     from cosim.analyses.profile_run import output_folder, run_profile, scenario_config
@@ -227,5 +227,5 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
     if not error.iloc[-1] > error.iloc[0]:
         failed.append("beta error does not grow with the location error")
     summary["checks_failed"] = failed
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    jsonio.write(out / "summary.json", summary, indent=2, sort_keys=True)
     return summary, failed

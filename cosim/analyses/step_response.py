@@ -24,11 +24,12 @@ virtual sensor.
 from __future__ import annotations
 
 import copy
-import json
 import sqlite3
 from pathlib import Path
 
 import numpy as np
+
+from cosim import jsonio
 
 SCENARIO = Path(__file__).resolve().parents[2] / "examples" / "step_response.toml"
 RISE_THRESHOLD = 1.05
@@ -263,5 +264,5 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
     summary["checks_failed"] = failed
     summary = {key: None if isinstance(value, float) and not np.isfinite(value) else value
                for key, value in summary.items()}       # strict JSON: no NaN
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    jsonio.write(out / "summary.json", summary, indent=2, sort_keys=True)
     return summary, failed

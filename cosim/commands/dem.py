@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import sys
 
+from cosim import jsonio
+
 SUMMARY_KEYS = ("particles", "dt_s", "steps", "wall_s", "particle_steps_per_s",
                 "angle_of_repose_deg", "discharged_kg", "mass_balance_rel_error")
 
@@ -68,7 +70,6 @@ def _check_positive(name, value, allow_zero=False):
 
 def _finish(dem, out, label, wall, steps, n_particle_steps, discharged_kg, balance):
     """Write checkpoint, pictures and summary.json; print the summary."""
-    import json
 
     from surrogate.dem.analysis import angle_of_repose
     from surrogate.dem.plots import pile_pictures
@@ -90,8 +91,8 @@ def _finish(dem, out, label, wall, steps, n_particle_steps, discharged_kg, balan
         "max_overlap_over_diameter": dem.max_overlap_ratio(),
         "list_builds": dem.list_builds,
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    print(json.dumps(summary, indent=2))
+    jsonio.write(out / "summary.json", summary, indent=2)
+    print(jsonio.dumps(summary, indent=2))
     return 0
 
 
@@ -118,8 +119,13 @@ def run_pile(args) -> int:
 
     from cosim.errors import ValidationError
     from surrogate.dem import DemConfig
-    from surrogate.dem.builders import (Progress, config_for_particles, packed_pile, pour_pile,
-                                        settle)
+    from surrogate.dem.builders import (
+        Progress,
+        config_for_particles,
+        packed_pile,
+        pour_pile,
+        settle,
+    )
     from surrogate.dem.simulation import Dem
     from surrogate.dem.snapshots import SnapshotWriter
 

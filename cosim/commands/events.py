@@ -25,12 +25,15 @@ def register(subparsers) -> None:
 
 
 def _open(path: Path):
+    """The store at ``path`` for reading (never written); a file that is not one is refused."""
     from cosim.errors import ValidationError
-    from cosim.events import EventStore
+    from cosim.events import EventStore, EventStoreError
 
-    if not path.is_file():
-        raise ValidationError("database", "an existing events.sqlite file", f"{path} not found")
-    return EventStore(path)
+    try:
+        return EventStore(path, readonly=True)
+    except EventStoreError as exc:
+        raise ValidationError("database", "an events.sqlite written by minetwin",
+                              str(exc)) from None
 
 
 def run_export(args) -> int:

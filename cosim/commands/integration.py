@@ -20,6 +20,8 @@ import re
 import sys
 from pathlib import Path
 
+from cosim import jsonio
+
 MAX_LAG_OK_S = 1.0
 """Largest lag [s of simulation] behind the server's clock still called keeping up."""
 
@@ -51,7 +53,6 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    import json
     import time
     import urllib.request
 
@@ -59,8 +60,15 @@ def run(args) -> int:
     from cosim.errors import ValidationError
     from cosim.storage import STORAGE_MODELS
     from opcua_server.audit import audit
-    from opcua_server.harness import (ManagedProcess, ServerProcess, StockpileProcess,
-                                      minetwin_command, drain_and_stop, free_port, prepare_state)
+    from opcua_server.harness import (
+        ManagedProcess,
+        ServerProcess,
+        StockpileProcess,
+        drain_and_stop,
+        free_port,
+        minetwin_command,
+        prepare_state,
+    )
 
     if not 0 < args.duration <= 86400:
         raise ValidationError("duration", "in (0, 86400] s", f"got {args.duration}")
@@ -70,6 +78,13 @@ def run(args) -> int:
         raise ValidationError("model", f"one of {sorted(STORAGE_MODELS)}", f"got {args.model!r}")
     storage_options = parse_model_options(args.option, field="option")
     _check_storage(args.model, storage_options)
+    if args.config is not None:  # the server would refuse it after the other processes start
+        from opcua_server.config import load_config
+
+        try:
+            load_config(args.config)
+        except ValidationError as exc:
+            raise ValidationError("--config", exc.allowed, exc.detail) from None
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     # a previous run in DIR: its logs would be appended to and its state resumed
@@ -126,8 +141,8 @@ def run(args) -> int:
         "refusals": ledger["refusals"], "monitor_ok": monitor_ok,
         "plots": _plots(out, ledger, summary),
     })
-    (out / "report.json").write_text(json.dumps(report, indent=2))
-    print(json.dumps(report, indent=2))
+    jsonio.write(out / "report.json", report, indent=2)
+    print(jsonio.dumps(report, indent=2))
     passed = (report["tracking_ids_lost"] == 0 and report["tracking_ids_duplicated"] == 0
               and report["mass_balance_rel_error"] < 1e-9 and report["unsent_reports"] == 0)
     return 0 if passed else 1

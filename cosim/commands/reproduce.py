@@ -9,9 +9,10 @@ their NAME here.
 from __future__ import annotations
 
 import importlib
-import json
 import sys
 from pathlib import Path
+
+from cosim import jsonio
 
 REPRODUCTIONS: dict[str, str] = {
     "step-response": "cosim.analyses.step_response",
@@ -46,7 +47,7 @@ def run(args) -> int:
     except CosimulationError as exc:
         print(f"minetwin reproduce: run failed: {exc}", file=sys.stderr)
         return 1
-    print(json.dumps(summary, indent=2, sort_keys=True))
+    print(jsonio.dumps(summary, indent=2, sort_keys=True))
     print(args.out / "summary.json")
     for problem in failed:
         print(f"minetwin reproduce {args.name}: check failed: {problem}", file=sys.stderr)

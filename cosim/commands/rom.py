@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+from cosim import jsonio
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
@@ -69,7 +71,6 @@ def run_train(args) -> int:
 
 
 def run_evaluate(args) -> int:
-    import json
     from pathlib import Path
 
     from cosim.errors import ValidationError
@@ -105,7 +106,7 @@ def run_evaluate(args) -> int:
                                                     "velocity_field_rel_error_dem_noise_floor",
                                                     "speedup_vs_dem", "targets")}
                           for name, s in summary["scenarios"].items()}
-    print(json.dumps(shown, indent=1))
+    print(jsonio.dumps(shown, indent=1))
     print(f"wrote {path}", file=sys.stderr)
     rom = summary["tracking_error"]["rom"]
     if rom != rom:

@@ -23,6 +23,10 @@ def register(subparsers) -> None:
     parser.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     parser.add_argument("--storage-model", default=None, metavar="NAME",
                         help="override the stockpile's storage model (fifo, mixing, ...)")
+    parser.add_argument("--model-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="keyword option of the stockpile's storage model, repeatable "
+                             "(e.g. --storage-model rom --model-option model=out/rom/model.npz);"
+                             " replaces the scenario's stockpile.options")
     parser.add_argument("--rest-port", type=int, default=None, metavar="PORT",
                         help="serve the stockpile's REST API on 127.0.0.1:PORT while running "
                              "(0: a free port, printed), for `minetwin monitor`")
@@ -34,17 +38,24 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from cosim.commands.stockpile import parse_model_options
     from cosim.errors import ValidationError
     from cosim.master import CosimulationError
     from cosim.scenario import load, run_scenario
+    from cosim.storage import storage_class
 
-    if args.until is not None and not args.until >= 0:
-        raise ValidationError("--until", ">= 0 s", f"got {args.until!r}")
+    if args.until is not None and not args.until > 0:
+        raise ValidationError("--until", "> 0 s", f"got {args.until!r}")
+    if args.storage_model is not None:
+        storage_class(args.storage_model, field="--storage-model")
     if args.rest_port is not None and not 0 <= args.rest_port <= 65535:
         raise ValidationError("--rest-port", "in [0, 65535]", f"got {args.rest_port!r}")
     if args.realtime_factor is not None and args.rest_port is None:
         raise ValidationError("--realtime-factor", "given together with --rest-port")
     config = load(args.scenario)
+    if args.model_option:
+        options = parse_model_options(args.model_option, field="--model-option")
+        config["stockpile"]["options"] = options
     try:
         _, summary = run_scenario(config, args.out, until=args.until, seed=args.seed,
                                   storage_model=args.storage_model, progress=not args.quiet,

@@ -22,7 +22,6 @@ table (every key optional except ``signals``)::
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,6 +29,7 @@ import numpy as np
 
 from cosim.errors import ValidationError
 from cosim.testing.bands import SignalComparison, Tolerance, compare_signal
+from cosim.tomlfile import read_toml
 
 TIME_COLUMN = "time"
 
@@ -50,13 +50,7 @@ class ReferenceSpec:
     def from_scenario(cls, path) -> "ReferenceSpec":
         """Read the ``[reference]`` table of scenario TOML ``path``."""
         path = Path(path)
-        try:
-            with path.open("rb") as handle:
-                document = tomllib.load(handle)
-        except FileNotFoundError:
-            raise ValidationError("scenario", "an existing TOML file", f"{path} not found") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ValidationError("scenario", "valid TOML", f"{path}: {exc}") from None
+        document = read_toml(path, "scenario")
         return cls.from_table(document.get("reference"), origin=str(path))
 
     @classmethod

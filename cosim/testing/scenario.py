@@ -13,11 +13,11 @@ simulator's and is set aside before validation.
 from __future__ import annotations
 
 import copy
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from cosim.errors import ValidationError
+from cosim.tomlfile import read_toml
 
 
 @dataclass
@@ -104,13 +104,7 @@ def apply_overrides(document: dict, overrides: dict | None) -> dict:
 
 
 def read_document(path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise ValidationError("scenario", "an existing TOML file", f"{str(path)!r} not found")
-    try:
-        return tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ValidationError("scenario", "valid TOML", f"{path}: {exc}") from None
+    return read_toml(path, "scenario")
 
 
 def run_scenario(path, *, until: float | None = None, overrides: dict | None = None,

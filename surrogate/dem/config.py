@@ -250,10 +250,9 @@ class DemConfig:
     @classmethod
     def from_toml(cls, path) -> "DemConfig":
         """Read a TOML file; the keys may sit at top level or under ``[dem]``."""
-        import tomllib
+        from cosim.tomlfile import read_toml
 
-        with open(path, "rb") as handle:
-            data = tomllib.load(handle)
+        data = read_toml(path, "dem config")
         return cls.from_dict(data.get("dem", data))
 
 
