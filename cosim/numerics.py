@@ -18,8 +18,8 @@ The DEM and the ROM's surface DEM are chaotic: a last-bit difference grows
 until the trajectory is another one. Their hot kernels use ``fastmath`` for
 speed (``HOT_JIT``) and so depend on the CPU. ``MINETWIN_REPRODUCIBLE=1``
 turns ``fastmath`` off and compiles for numba's ``generic`` CPU, which makes
-them the same on every x86-64 machine too, at a measured speed cost (see
-``docs/architecture.md``, "Reproducibility").
+them the same on every x86-64 machine too, at a measured speed cost (README,
+"Reproducibility across machines").
 """
 
 from __future__ import annotations
@@ -45,6 +45,13 @@ HOT_JIT = {"cache": True, "fastmath": not REPRODUCIBLE, "error_model": "numpy"}
 reorder float arithmetic, which is still deterministic on one machine (restarts stay
 bit for bit) but not across instruction sets; off with ``MINETWIN_REPRODUCIBLE=1``.
 error_model="numpy" drops the zero-division checks."""
+
+
+ANOTHER_CPU_ENV = {"OPENBLAS_CORETYPE": "Prescott", "NUMBA_CPU_NAME": "generic",
+                   "GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX2_Usable,-FMA_Usable,-AVX_Usable"}
+"""Environment under which this machine computes as another x86-64 CPU would: OpenBLAS's
+baseline kernel, numba compiling for a generic CPU, glibc's maths without AVX2 and FMA.
+The nearest stand-in for a second machine in a test."""
 
 
 def reproducibility() -> dict:

@@ -78,16 +78,34 @@ def test_disk_slides_on_incline_above_friction_angle_with_coulomb_deceleration()
     assert moved == pytest.approx(expected, rel=0.03)
 
 
-@pytest.mark.slow
-def test_poured_pile_angle_of_repose_in_30_to_40_degrees():
-    n = 600
-    cfg = config_for_particles(n)
-    dem = Dem(cfg, seed=0)
-    pour_pile(dem, n)
+def _poured_repose_angle(seed: int, particles: int = 600) -> float:
+    """Mean flank angle [deg] of a pile of ``particles`` disks poured and settled 10 s."""
+    cfg = config_for_particles(particles)
+    dem = Dem(cfg, seed=seed)
+    pour_pile(dem, particles)
     settle(dem, max_time=10.0)
     left, right = side_angles(dem.pos, dem.radius)
-    mean = 0.5 * (left + right)
-    assert 30.0 <= mean <= 40.0, (left, right)
+    return 0.5 * (left + right)
+
+
+REPOSE_SEEDS = (0, 1, 2, 3)
+REPOSE_MEAN_DEG, REPOSE_SD_DEG = 38.6, 2.66
+"""Measured over 16 poured piles (seeds 0-7, each compiled for this AMD EPYC and with
+``NUMBA_CPU_NAME=generic``): per-pile mean flank angle 38.6 deg, standard deviation
+2.66 deg (``python tests/test_dem_physics.py 0 1 2 3 4 5 6 7``, once per target)."""
+
+
+@pytest.mark.slow
+def test_poured_piles_angle_of_repose_over_seeds():
+    """A poured pile's angle is chaotic (one pile ranged 34.4-44.5 deg over seeds, and a
+    pile changes with the CPU's instruction set), so the test is on the mean over four
+    seeds: within three standard errors of the measured ensemble mean, and inside the
+    30-45 deg of dry rock piles."""
+    angles = [_poured_repose_angle(seed) for seed in REPOSE_SEEDS]
+    band = 3.0 * REPOSE_SD_DEG / math.sqrt(len(angles))
+    mean = float(np.mean(angles))
+    assert abs(mean - REPOSE_MEAN_DEG) <= band, angles
+    assert 30.0 <= mean <= 45.0, angles
 
 
 @pytest.fixture(scope="module")
@@ -173,3 +191,10 @@ def test_step_above_the_limit_is_refused_with_the_limit_in_the_message():
         Dem(DemConfig(), dt=1.5 * dem.stable_dt)
     dem.set_dt(2 * dem.stable_dt, force=True)
     assert dem.dt == 2 * dem.stable_dt
+
+
+if __name__ == "__main__":
+    import sys
+
+    for seed in map(int, sys.argv[1:]):
+        print(seed, round(_poured_repose_angle(seed), 2), flush=True)

@@ -20,6 +20,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from cosim.numerics import ANOTHER_CPU_ENV
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "examples" / "step_response.toml"
 MINETWIN = str(Path(sys.executable).with_name("minetwin"))
@@ -32,8 +34,6 @@ DIGESTS = {
 }
 """(events, time series) SHA-256 digests per storage model."""
 
-OTHER_CPU = {"OPENBLAS_CORETYPE": "Prescott", "NUMBA_CPU_NAME": "generic",
-             "GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX2_Usable,-FMA_Usable,-AVX_Usable"}
 
 
 def _digest(out: Path) -> tuple[str, str]:
@@ -62,7 +62,7 @@ def _run(model: str, out: Path, env=None) -> tuple[str, str]:
 def test_seeded_mine_run_has_the_recorded_digest_on_this_cpu_and_another(model, tmp_path):
     here = _run(model, tmp_path / "here")
     assert here == DIGESTS[model], f"{model}: {here} (rerun this file to re-record)"
-    assert _run(model, tmp_path / "other", OTHER_CPU) == here
+    assert _run(model, tmp_path / "other", ANOTHER_CPU_ENV) == here
 
 
 if __name__ == "__main__":

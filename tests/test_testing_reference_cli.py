@@ -73,3 +73,20 @@ def test_a_run_that_fails_exits_1_with_the_simulator_message(recorded, capsys):
                  "sources.left.length_m=3"]) == 1       # the left ore body runs out
     err = capsys.readouterr().err
     assert "minetwin reference compare: the run of" in err and "ore body exhausted" in err
+
+
+def test_a_reference_recorded_on_another_cpu_passes_here(recorded, tmp_path):
+    """Recorded with another BLAS kernel, numba target and libm (as on another machine;
+    see tests/test_reproducibility.py), compared here with the default bands."""
+    import os
+    import subprocess
+    import sys
+
+    from cosim.numerics import ANOTHER_CPU_ENV
+
+    scenario, _ = recorded
+    elsewhere = tmp_path / "recorded_elsewhere.csv"
+    subprocess.run([sys.executable, "-m", "cosim.cli", "reference", "record", str(scenario),
+                    "--out", str(elsewhere), "--until", "150"], check=True,
+                   capture_output=True, env={**os.environ, **ANOTHER_CPU_ENV})
+    assert main(["reference", "compare", str(scenario), str(elsewhere)]) == 0
