@@ -31,11 +31,17 @@ import numpy as np
 REPRODUCIBLE = os.environ.get("MINETWIN_REPRODUCIBLE", "") == "1"
 """``MINETWIN_REPRODUCIBLE=1``: chaotic kernels compiled without fastmath for a generic CPU."""
 
-if REPRODUCIBLE and os.environ.get("NUMBA_CPU_NAME") != "generic":
+if REPRODUCIBLE:
+    from pathlib import Path
+
     import numba.core.config
 
-    # numba reads NUMBA_CPU_NAME when it is imported; re-read it before anything compiles
     os.environ["NUMBA_CPU_NAME"] = "generic"
+    # numba's cache keys hold the CPU target but not fastmath: code cached by a
+    # generic-CPU run with fastmath would be loaded here, so this mode caches apart
+    os.environ.setdefault("NUMBA_CACHE_DIR",
+                          str(Path.home() / ".cache" / "minetwin" / "numba-reproducible"))
+    # numba reads its environment when it is imported; re-read it before anything compiles
     numba.core.config.reload_config()
 
 from numba import njit  # noqa: E402

@@ -65,6 +65,29 @@ def test_seeded_mine_run_has_the_recorded_digest_on_this_cpu_and_another(model, 
     assert _run(model, tmp_path / "other", ANOTHER_CPU_ENV) == here
 
 
+DEM_RUN = """
+import hashlib, numpy as np
+from surrogate.dem import Dem
+from surrogate.dem.builders import config_for_particles, pour_pile
+cfg = config_for_particles(150)
+dem = Dem(cfg, seed=4)
+pour_pile(dem, 150)
+dem.advance(1.0)
+print(hashlib.sha256(np.ascontiguousarray(dem.pos).tobytes() + dem.vel.tobytes()).hexdigest())
+"""
+
+
+@pytest.mark.slow
+def test_reproducible_mode_makes_a_chaotic_dem_run_the_same_on_another_cpu():
+    """MINETWIN_REPRODUCIBLE=1: no fastmath, generic CPU; the DEM's state after 1 s of
+    pouring hashes alike here and under another CPU's numerics."""
+    env = {**os.environ, "MINETWIN_REPRODUCIBLE": "1"}
+    here, elsewhere = (subprocess.run([sys.executable, "-c", DEM_RUN], check=True, text=True,
+                                      capture_output=True, env=extra).stdout
+                       for extra in (env, {**env, **ANOTHER_CPU_ENV}))
+    assert len(here.strip()) == 64 and here == elsewhere
+
+
 if __name__ == "__main__":
     import tempfile
 
