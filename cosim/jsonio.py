@@ -22,7 +22,11 @@ def plain(value):
     if isinstance(value, (list, tuple)):
         return [plain(v) for v in value]
     if isinstance(value, np.ndarray):
-        return plain(value.tolist())
+        if value.dtype.kind == "f":  # one pass over the array, not one call per element
+            rows = value.astype(object)
+            rows[~np.isfinite(value)] = None
+            return rows.tolist()
+        return value.tolist() if value.dtype.kind in "biu" else plain(value.tolist())
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
     if isinstance(value, (int, np.integer)):

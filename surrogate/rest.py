@@ -48,6 +48,7 @@ import numpy as np
 from aiohttp import web
 
 from cosim.errors import ValidationError
+from cosim.jsonio import plain as to_json
 from cosim.master import Component
 from cosim.sensors import observe
 from cosim.sizes import d_passing
@@ -270,28 +271,7 @@ def _edges(values: np.ndarray, cells: int) -> np.ndarray:
     return np.linspace(low, high + 1e-9 * max(1.0, abs(high)), cells + 1)
 
 
-# ---------------------------------------------------------------- JSON helpers
-def to_json(value):
-    """Plain JSON-able Python value: numpy arrays to lists, NaN/inf to null."""
-    if isinstance(value, dict):
-        return {str(k): to_json(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [to_json(v) for v in value]
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind == "f":
-            out = value.astype(object)
-            out[~np.isfinite(value)] = None
-            return out.tolist()
-        return value.tolist()
-    if isinstance(value, (np.floating, float)):
-        return float(value) if math.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.bool_):
-        return bool(value)
-    return value
-
-
+# ----------------------------------------------------------- query parameters
 def _query_number(request, field, default, low, high, *, integer=False, low_open=False):
     """A query parameter as a number in [low, high] (or (low, high]), else a
     ValidationError naming ``field``."""
