@@ -1,7 +1,7 @@
 """MineTwin core: particles, size classes, block model, events, sensors,
 storage models, the FMU co-simulation master, scenarios, analyses and the CLI.
 
-See DESIGN.md and the paper "Digital twins with distributed particle
+See docs/architecture.md and the paper "Digital twins with distributed particle
 simulation for mine-to-mill material tracking" (Servin, Vesterlund, Wallin).
 """
 

@@ -4,7 +4,7 @@ the mill's population balance to every particle (vectorised / numba).
 Source: paper section "Simulator" (crusher: f_n := f_n - df_n- + df_n+ for a
 particle passing the jaw; mill: per time step df_n- = (P^k_n + Q^k_n) f^k_n dt,
 broken mass redistributed to finer classes, escape through the classifier),
-with the errata of DESIGN.md section 5a (the mass broken out of class j is
+with the paper's errata as resolved (docs/architecture.md; the mass broken out of class j is
 spread over the finer classes by the daughter fractions D[:, j], which sum
 to 1, so breakage conserves mass).
 

@@ -3,7 +3,7 @@
 Source: paper section "Digital twin as a distributed particle simulation",
 the event message
     event = {id, type, location x, time t, particles = {[n1, X_n1(t)], ...}}
-extended with the asset that emits it (DESIGN.md section 3).
+extended with the asset that emits it.
 
 The store is one SQLite file (WAL mode) with two tables:
 

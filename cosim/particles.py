@@ -4,7 +4,7 @@ Source: paper section "Digital twin as a distributed particle simulation":
 a pseudo-particle n has state X_n = [m_n, x_n, v_n, f_n, c_n, h_n], a position
 of origin x_n(t0) (and its block i in the block model), and extrinsic
 attributes written by observations along the chain (MWD signal, observed
-crushability or grindability, ...). DESIGN.md section 3 fixes the layout.
+crushability or grindability, ...); docs/architecture.md, "Data flow".
 
 One store holds every particle of a scenario; the asset that currently holds
 a particle is its ``owner`` (an integer the co-simulation assigns per asset,

@@ -2,7 +2,8 @@
 
 Source: paper section "Digital twin as a distributed particle simulation"
 (size distribution f_n in N_d classes, cumulative F^k, D_F by interpolation,
-mean diameter d.f) and DESIGN.md section 2 (class diameters).
+mean diameter d.f); the class diameters are ours (docs/architecture.md, "Units and
+conventions").
 
 Class k (0-based, k = 0..15) holds the mass fraction f^k of material with
 size in (d_{k-1}, d_k], with d_k = 1e-5 m * r**k and r = 10**(1/3), so that

@@ -3,8 +3,8 @@
 Source: paper sections "Introduction" and "Digital twin as a distributed
 particle simulation": micro-tracking in chutes, silos and stockpiles needs a
 model "that may range from simple first-in-first-out or perfect mixing
-models, to a physics-based flow model"; DESIGN.md section 4 orders them as a
-fidelity ladder: plug flow (FIFO) < perfect mixing < reduced-order model
+models, to a physics-based flow model"; they form a fidelity ladder
+(docs/architecture.md): plug flow (FIFO) < perfect mixing < reduced-order model
 (ROM) < DEM.
 
 Every model has the same calls (scikit-learn style):

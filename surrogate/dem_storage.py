@@ -1,4 +1,4 @@
-"""The DEM as a storage model: the top rung of the fidelity ladder (DESIGN.md section 4).
+"""The DEM as a storage model: the top rung of the fidelity ladder.
 
 Source: paper section "Digital twin as a distributed particle simulation"
 (physics-based micro-tracking in a stockpile: particles fall, impact,

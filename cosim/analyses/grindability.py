@@ -17,7 +17,7 @@ same window. The work index BWI [kWh/t] follows from
 with D80 in metres. Bond's law is W[kWh/t] = BWI[kWh/t] (10/sqrt(P80[um]) -
 10/sqrt(F80[um])); with 1 kWh/t = 3600 J/kg and sqrt(D[um]) = 1000 sqrt(D[m])
 the factor is 3600/1000 = 3.6 multiplying, not dividing: the printed BWI/3.6
-is a unit slip (DESIGN.md section 5a). The grindability is G = 1/BWI [t/kWh].
+is a unit slip (docs/architecture.md, errata). The grindability is G = 1/BWI [t/kWh].
 
 Block reconciliation, paper eq. (grindability_backtracking): with an a
 priori estimate G_i^0 for block i and grindabilities G(t_k) observed at the

@@ -6,7 +6,7 @@ from __future__ import annotations
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "sizes", help="print the size classes and a Swebrec blast distribution",
-        description="Print the 16 logarithmic size classes (DESIGN.md section 2) with the "
+        description="Print the 16 logarithmic size classes (d_k = 1e-5 m * 10^(k/3), k = 0..15) with the "
                     "class fractions of a Swebrec blast fragmentation curve, and its D50/D80.")
     parser.add_argument("--x50", type=float, default=0.1, help="median fragment size [m] (0.1)")
     parser.add_argument("--x-max", type=float, default=1.0, help="largest fragment [m] (1.0)")

@@ -2,8 +2,8 @@
 
 Each ``assert_*`` raises ``AssertionError`` whose text says what was
 expected, what was found, where (time, asset, ids) and what to look at.
-Source of the invariants: DESIGN.md section 8 (mass conservation with
-relative error < 1e-9; no tracking id lost or duplicated), the paper's
+Source of the invariants: mass conservation with relative error < 1e-9 and
+no tracking id lost or duplicated, the paper's
 section "Integration test" (every tracking id entering the stockpile is
 held or leaves on the outgoing belt) and section "Results", "Step response"
 (gain and delay of a signal after a step in the feed).
@@ -47,7 +47,7 @@ def assert_mass_balance(source=None, *, mass_in_kg=None, mass_held_kg=None, mass
     time : array [s], optional
         Times of the array values (used in the message).
     rtol : float
-        Relative tolerance [-] (default 1e-9, DESIGN.md section 8).
+        Relative tolerance [-] (default 1e-9).
     atol : float
         Absolute tolerance [kg] (default 0).
     where : str

@@ -1,7 +1,7 @@
 """A lockstep OPC UA integration for tests: mock 800xA server process + stockpile client.
 
 Source: paper section "Integration test" (mock process simulator, stockpile
-surrogate as OPC UA client, tracking exchange) and DESIGN.md section 6. The
+surrogate as OPC UA client, tracking exchange). The
 server and client are the real ones (``opcua_server``, ``surrogate.client``)
 over Basic256Sha256 SignAndEncrypt with credentials and certificates made
 for the test (``opcua_server.harness.prepare_state``). In lockstep the
