@@ -108,7 +108,7 @@ def test_rom_stockpile_over_opcua_loses_nothing_and_discharges(rom_file, tmp_pat
 def test_bad_rom_option_is_refused_by_name_before_any_process_starts(tmp_path, capsys):
     out = tmp_path / "run"
     for option, field in ((f"model={tmp_path / 'missing.npz'}", "model"),
-                          ("no_such_option=1", "option"), ("model", "option")):
+                          ("no_such_option=1", "option.no_such_option"), ("model", "option")):
         code = main(["integration-test", "--duration", "10", "--model", "rom",
                      "--option", option, "--out", str(out)])
         assert code == 2

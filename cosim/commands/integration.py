@@ -158,8 +158,10 @@ def _check_storage(model: str, options: dict) -> None:
     import warnings
 
     from cosim.errors import ValidationError
+    from cosim.storage import check_storage_options
     from surrogate.stockpile import StockpileAsset
 
+    check_storage_options(model, options, field="option")
     try:
         with warnings.catch_warnings():
             # a pile of one bin lies outside any ROM's training range: not an error here
