@@ -21,6 +21,17 @@ source's latest output: the value of the current step if the source was
 added earlier (Gauss-Seidel order), else of the previous step. Particles
 move between assets by changing their owner in the shared ``ParticleStore``
 inside the assets' own ``step``; the master only moves signals.
+
+A component may ask to end the simulation by setting ``stop_request`` to a
+``StopRequest(time, reason)`` in its ``step`` (an FMU does when it requests
+termination). The master finishes that communication step, records it at
+the earliest requested time and ends the run; ``Master.stopped`` says which
+component stopped it, when and why.
+
+Recording writes into preallocated columns (grown by doubling): scalars of
+each component's ``outputs()`` and 1-D arrays as ``signal[k]`` columns, of
+the dtype the component declares in ``record_dtypes()`` (an FMU: its
+variables' types) or float64.
 """
 
 from __future__ import annotations
@@ -38,6 +49,14 @@ class CosimulationError(RuntimeError):
     """A component failed during ``Master.run``; recorded data stays readable."""
 
 
+@dataclass(frozen=True)
+class StopRequest:
+    """A component's request to end the simulation at ``time`` [s], and why."""
+
+    time: float
+    reason: str
+
+
 class Component:
     """Base class of everything the master steps.
 
@@ -50,6 +69,8 @@ class Component:
     name: str = "component"
     input_names: tuple[str, ...] = ()
     """Inputs this component accepts; ``connect`` refuses others (empty: any)."""
+    stop_request: "StopRequest | None" = None
+    """Set in ``step`` to end the simulation (the master reads it after each step)."""
 
     def __init__(self):
         self.inputs: dict[str, object] = {}
@@ -68,6 +89,10 @@ class Component:
 
     def finish(self) -> None:
         pass
+
+    def record_dtypes(self) -> dict:
+        """numpy dtype per output signal for recording (missing: float64)."""
+        return {}
 
 
 @dataclass(frozen=True)
@@ -104,8 +129,10 @@ class Master:
         self.connections: list[Connection] = []
         self._by_target: dict[int, list[Connection]] = {}
         self._steps_done = 0
-        self._records: list[dict[str, float]] = []
+        self._recorder = _Recorder()
         self.wall_s = 0.0
+        self.stopped: dict | None = None
+        """None, or {"component", "time", "reason"} of the stop request that ended the run."""
 
     def add(self, component: Component) -> Component:
         """Add a component; names must be unique."""
@@ -129,35 +156,51 @@ class Master:
         self._by_target.setdefault(id(target), []).append(connection)
 
     def run(self, until: float) -> "Master":
-        """Advance all components to time ``until`` [s] (continuing from ``self.time``)."""
+        """Advance all components to time ``until`` [s] (continuing from ``self.time``);
+        ends earlier if a component requests a stop (see ``stopped``)."""
         n_steps = int(round((until - self.time) / self.step))
         if n_steps < 0:
             raise ValidationError("until", f">= current time {self.time:g} s", f"got {until!r}")
+        if self.stopped is not None:
+            raise ValidationError("until", f"not past the stop requested by "
+                                  f"{self.stopped['component']} at {self.stopped['time']:g} s",
+                                  f"got {until!r}")
         first = self._steps_done
         start = wallclock.perf_counter()
         last_report = start
         latest = {id(c): c.outputs() for c in self.components}
+        inputs = [(c, [(conn.input, id(conn.source), conn.output, conn.source.name)
+                       for conn in self._by_target.get(id(c), ())])
+                  for c in self.components]
+        record = self._recorder.record
         try:
             for k in range(first, first + n_steps):
                 t = k * self.step
-                for component in self.components:
-                    for conn in self._by_target.get(id(component), ()):
-                        value = latest[id(conn.source)].get(conn.output)
-                        if value is None:
+                stops = None
+                for component, connections in inputs:
+                    for name, source, output, source_name in connections:
+                        try:
+                            value = latest[source][output]
+                        except KeyError:
                             raise ValidationError(
-                                "output", f"an output of {conn.source.name}",
-                                f"{conn.output!r} not in {sorted(latest[id(conn.source)])}")
-                        component.set_input(conn.input, value)
+                                "output", f"an output of {source_name}",
+                                f"{output!r} not in {sorted(latest[source])}") from None
+                        component.set_input(name, value)
                     try:
                         component.step(t, self.step)
                     except Exception as exc:
                         raise CosimulationError(
                             f"{component.name} failed at t = {t:g} s: {exc}") from exc
                     latest[id(component)] = component.outputs()
+                    if component.stop_request is not None:
+                        stops = (stops or []) + [component]
                 self._steps_done = k + 1
                 self.time = self._steps_done * self.step
+                if stops:
+                    self._stop(stops, t, latest)
+                    break
                 if self._steps_done % self.record_every == 0:
-                    self._record(latest)
+                    record(self.time, self.components, latest)
                 if self.progress:
                     now = wallclock.perf_counter()
                     if now - last_report > 1.0 or k == first + n_steps - 1:
@@ -169,22 +212,24 @@ class Master:
                 print(file=sys.stderr)
         return self
 
+    def _stop(self, components, t: float, latest) -> None:
+        """End the run at the earliest requested stop time within the step [t, t + step]."""
+        first = min(components, key=lambda c: c.stop_request.time)
+        request = first.stop_request
+        when = min(max(request.time, t), self.time)
+        self.stopped = {"component": first.name, "time": when, "reason": request.reason}
+        self.time = when
+        recorder = self._recorder
+        if recorder.rows == 0 or recorder.time[recorder.rows - 1] != when:
+            recorder.record(when, self.components, latest)
+        if self.progress:
+            print(f"\nstopped at t = {when:g} s by {first.name}: {request.reason}",
+                  file=sys.stderr)
+
     def finish(self) -> None:
         """Let every component release its resources (FMU instances, files)."""
         for component in self.components:
             component.finish()
-
-    def _record(self, latest) -> None:
-        row = {"time": self.time}
-        for component in self.components:
-            for signal, value in latest[id(component)].items():
-                key = f"{component.name}.{signal}"
-                if np.ndim(value) == 0:
-                    row[key] = float(value)
-                elif np.ndim(value) == 1:
-                    for j, item in enumerate(np.asarray(value, dtype=float)):
-                        row[f"{key}[{j}]"] = item
-        self._records.append(row)
 
     def _report(self, until: float, elapsed: float) -> None:
         fraction = self.time / until if until > 0 else 1.0
@@ -197,7 +242,100 @@ class Master:
     def timeseries(self):
         """Recorded outputs as a DataFrame indexed by time [s]; columns ``component.signal``
         (1-D array outputs as ``component.signal[k]``)."""
+        return self._recorder.frame()
+
+
+def _missing(dtype):
+    """Value of a recorded column where its signal is absent."""
+    return np.nan if dtype.kind in "fc" else (None if dtype.kind == "O" else 0)
+
+
+class _Recorder:
+    """Time series in preallocated numpy columns, one block per (component, signal).
+
+    The layout of a component is fixed on its first record; a record whose
+    outputs differ in keys or shapes adds columns (earlier rows: NaN for
+    float columns)."""
+
+    def __init__(self):
+        self.rows = 0
+        self.capacity = 0
+        self.time = np.empty(0)
+        self.layouts: dict[int, tuple] = {}   # id(component) -> (n_keys, [(key, block)])
+        self.blocks: dict[str, np.ndarray] = {}  # "component.signal" -> (capacity[, n])
+        self.order: list[str] = []
+
+    def record(self, time: float, components, latest) -> None:
+        row = self.rows
+        if row == self.capacity:
+            self._grow()
+        self.time[row] = time
+        for component in components:
+            outputs = latest[id(component)]
+            layout = self.layouts.get(id(component))
+            if layout is None or layout[0] != len(outputs):
+                layout = self._layout(component, outputs)
+            try:
+                for signal, block in layout[1]:
+                    block[row] = outputs[signal]
+            except (KeyError, ValueError, TypeError):
+                layout = self._layout(component, outputs)
+                for signal, block in layout[1]:
+                    block[row] = outputs[signal]
+        self.rows = row + 1
+
+    def _layout(self, component, outputs) -> tuple:
+        dtypes = component.record_dtypes()
+        entries = []
+        for signal, value in outputs.items():
+            ndim = np.ndim(value)
+            if ndim > 1:
+                continue
+            key = f"{component.name}.{signal}"
+            dtype = np.dtype(dtypes.get(signal, np.float64))
+            width = () if ndim == 0 else (len(value),)
+            block = self.blocks.get(key)
+            if block is None or block.shape[1:] != width:
+                block = self._new_block(dtype, width)
+                if key not in self.blocks:
+                    self.order.append(key)
+                self.blocks[key] = block
+            entries.append((signal, block))
+        layout = (len(outputs), entries)
+        self.layouts[id(component)] = layout
+        return layout
+
+    def _new_block(self, dtype, width) -> np.ndarray:
+        block = np.empty((self.capacity, *width), dtype=dtype)
+        block[:] = _missing(dtype)
+        return block
+
+    def _grow(self) -> None:
+        capacity = max(64, 2 * self.capacity)
+        self.time = np.resize(self.time, capacity)
+        renamed = {}
+        for key, block in self.blocks.items():
+            grown = np.empty((capacity, *block.shape[1:]), dtype=block.dtype)
+            grown[:self.capacity] = block
+            grown[self.capacity:] = _missing(block.dtype)  # rows a signal is absent from
+            renamed[id(block)] = grown
+            self.blocks[key] = grown
+        self.capacity = capacity
+        self.layouts = {cid: (n, [(signal, renamed[id(block)]) for signal, block in entries])
+                        for cid, (n, entries) in self.layouts.items()}
+
+    def frame(self):
         import pandas as pd
 
-        frame = pd.DataFrame.from_records(self._records)
-        return frame.set_index("time") if not frame.empty else frame
+        if self.rows == 0:
+            return pd.DataFrame()
+        columns = {}
+        for key in self.order:
+            block = self.blocks[key][:self.rows]
+            if block.ndim == 1:
+                columns[key] = block.copy()
+            else:
+                for j in range(block.shape[1]):
+                    columns[f"{key}[{j}]"] = block[:, j].copy()
+        frame = pd.DataFrame(columns, index=pd.Index(self.time[:self.rows].copy(), name="time"))
+        return frame
