@@ -615,8 +615,18 @@ class FmuComponent(Component):
                 return values.astype(np.float64)
             if kind == "Boolean" and array.dtype.kind == "b":
                 return values
-        checked = [self._check_scalar(where, variable, kind, item) for item in values]
-        return checked
+        if kind == "Binary" and role == "parameter":  # a scenario file gives bytes as hex text
+            values = [self._from_hex(where, item) if isinstance(item, str) else item
+                      for item in values]
+        return [self._check_scalar(where, variable, kind, item) for item in values]
+
+    @staticmethod
+    def _from_hex(where: str, text: str) -> bytes:
+        try:
+            return bytes.fromhex(text)
+        except ValueError:
+            raise ValidationError(where, "Binary: bytes or a hex string such as '0a0b'",
+                                  f"got {text!r}") from None
 
     @staticmethod
     def _check_scalar(where, variable, kind, item):
@@ -859,3 +869,49 @@ class FmuComponent(Component):
             self.slave.freeInstance()
         if getattr(self, "_cleanup", None):
             self._cleanup()
+
+
+def describe_fmu(path) -> dict:
+    """What ``minetwin fmus info`` shows: model attributes, interfaces, platforms and every
+    variable (name, causality, type, shape, unit, start, description, enumeration items)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValidationError("fmu", "an existing .fmu file", f"{path} does not exist")
+    description = read_description(path)
+    fmi = 3 if description.fmiVersion == "3.0" else 2
+    grouped = (_fmi3_variables if fmi == 3 else _fmi2_variables)(description)
+    with zipfile.ZipFile(path) as archive:
+        names = archive.namelist()
+    platforms = sorted({n.split("/")[1] for n in names
+                        if n.startswith("binaries/") and n.count("/") >= 2 and n.split("/")[2]})
+    interfaces = [kind for kind, attr in (("Co-Simulation", "coSimulation"),
+                                          ("Model Exchange", "modelExchange"),
+                                          ("Scheduled Execution", "scheduledExecution"))
+                  if getattr(description, attr, None) is not None]
+    cs = description.coSimulation
+    return {
+        "file": str(path), "fmi_version": description.fmiVersion,
+        "model_name": description.modelName, "description": description.description or "",
+        "generation_tool": description.generationTool or "",
+        "generation_date": description.generationDateAndTime or "",
+        "interfaces": interfaces, "platforms": platforms,
+        "this_platform": _binary_platform(fmi)[0],
+        "event_mode": bool(cs is not None and fmi == 3 and cs.hasEventMode),
+        "variables": [{"name": v.name, "causality": v.causality, "type": v.type,
+                       "native_type": v.native_type,
+                       "shape": list(v.shape) if "incomplete" not in v.shape else None,
+                       "unit": v.unit, "start": _start_text(v), "description": v.description,
+                       "items": {str(k): n for k, n in v.items.items()}}
+                      for v in grouped.values()],
+    }
+
+
+def _start_text(variable: _Variable) -> str:
+    start = variable.start
+    if start is None or (isinstance(start, list) and all(s is None for s in start)):
+        return ""
+    if isinstance(start, list):
+        distinct = {str(s) for s in start}
+        return distinct.pop() + " (each element)" if len(distinct) == 1 else \
+            " ".join(str(s) for s in start)
+    return str(start)
