@@ -314,10 +314,8 @@ def read_description(path: Path):
 
     try:
         with zipfile.ZipFile(path) as archive:
-            broken = archive.testzip()
-            if broken is not None:
-                raise ValidationError("fmu", "an intact FMU archive",
-                                      f"{path}: member {broken} fails its CRC check")
+            for info in archive.infolist():
+                _check_member(path, archive, info)
             if "modelDescription.xml" not in archive.namelist():
                 raise ValidationError("fmu", "an FMU archive with modelDescription.xml",
                                       f"{path} has none")
@@ -328,6 +326,22 @@ def read_description(path: Path):
     except Exception as exc:  # fmpy raises plain Exceptions on malformed XML
         raise ValidationError("fmu", "an FMU with a readable modelDescription.xml",
                               f"{path}: {exc}") from None
+
+
+def _check_member(path: Path, archive: zipfile.ZipFile, info: zipfile.ZipInfo) -> None:
+    """Read one member through, so its CRC and its deflate stream are checked."""
+    try:
+        with archive.open(info) as member:
+            while member.read(1 << 20):
+                pass
+    except zipfile.BadZipFile as exc:
+        detail = "fails its CRC check" if "CRC" in str(exc) else str(exc)
+        raise ValidationError("fmu", "an intact FMU archive",
+                              f"{path}: member {info.filename} {detail}") from None
+    except (zlib.error, EOFError) as exc:
+        raise ValidationError("fmu", "an intact FMU archive",
+                              f"{path}: member {info.filename}: corrupt deflate stream "
+                              f"({exc})") from None
 
 
 def check_binary(path: Path, description, fmi: int) -> None:
@@ -908,6 +922,8 @@ def describe_fmu(path) -> dict:
 
 def _start_text(variable: _Variable) -> str:
     start = variable.start
+    if isinstance(start, str) and variable.shape and variable.type not in ("String", "Binary"):
+        start = start.split()  # an FMI 3 array's start values
     if start is None or (isinstance(start, list) and all(s is None for s in start)):
         return ""
     if isinstance(start, list):

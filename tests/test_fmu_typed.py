@@ -248,3 +248,33 @@ def test_event_inside_a_step_as_fmpy_handles_it(fmi, rate):
     exact = np.mod(rate * series.index.to_numpy(), 1.0)
     print(f"FMI {fmi} rate {rate}: max |master - (rate t mod 1)| = "
           f"{max_abs_difference(series['fmu.level'], exact)}")
+
+
+# ---- minetwin fmus info ---------------------------------------------------------------------
+@pytest.mark.parametrize("fmi", [3, 2])
+def test_cli_info_lists_every_variable(fmi, capsys):
+    import json
+
+    from cosim.cli import main
+    from cosim.fmu import fmu_path
+
+    path = typed_fmu_file("all_types", fmi)
+    assert main(["fmus", "info", str(path)]) == 0
+    text = capsys.readouterr().out
+    assert f"FMI version      {fmi}.0" in text and "MineTwin fmus/typed.py" in text
+    assert "(1 = off, 2 = low, 3 = high)" in text
+    rows = {line.split()[0]: line.split() for line in text.splitlines()[10:]}
+    assert rows["p_int32"][:4] == ["p_int32", "parameter", "Int32", "-2000000000"]
+    assert rows["y_boolean"][:3] == ["y_boolean", "output", "Boolean"]
+    if fmi == 3:
+        assert rows["u_uint64"][:3] == ["u_uint64", "input", "UInt64"]
+        assert rows["p_binary"][:4] == ["p_binary", "parameter", "Binary", "0a0b"]
+    assert main(["fmus", "info", "--json", str(fmu_path("mill", fmi))]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["generation_tool"] == "MineTwin fmus/build.py"
+    assert info["generation_date"].endswith("Z") and info["generation_date"][:2] == "20"
+    charge = next(v for v in info["variables"] if v["name"] == "charge_mass")
+    assert charge == {"name": "charge_mass", "causality": "input", "type": "Float64",
+                      "native_type": "Float64" if fmi == 3 else "Real", "shape": [16],
+                      "unit": "kg", "start": "0.0" + (" (each element)" if fmi == 2 else ""),
+                      "description": charge["description"], "items": {}}
