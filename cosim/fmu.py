@@ -226,6 +226,8 @@ class _Variable:
     description: str = ""
     variability: str = ""
     items: dict = field(default_factory=dict)  # Enumeration: value -> item name
+    low: float = float("-inf")   # range an integer input takes (set for the fast path)
+    high: float = float("inf")
 
     @property
     def size(self) -> int:
@@ -401,6 +403,8 @@ class _Group:
             offset += v.size
         self.binary_keep: list = []  # keeps Binary input buffers alive while the FMU may read them
         self.calls = None  # {"get"|"set": (fmpy function, arguments)}, bound on first use
+        self.has_scalars = any(v.shape == () for v in variables)
+        self.bool_ints = access.function == "Boolean" and access.dtype is np.int32
 
 
 class FmuComponent(Component):
@@ -450,9 +454,9 @@ class FmuComponent(Component):
         self._inputs = self._groups([v for v in usable if v.causality == "input"])
         self._outputs = self._groups([v for v in usable if v.causality == "output"])
         self.input_names = tuple(v.name for g in self._inputs for v in g.variables)
-        self._input_slot = {v.name: (g, *g.slices[v.name], v)
+        self._input_slot = {v.name: (g, *g.slices[v.name], v, self._fast_type(v))
                             for g in self._inputs for v in g.variables}
-        for group, where, shape, v in self._input_slot.values():
+        for group, where, shape, v, _ in self._input_slot.values():
             # inputs not set by the user keep the FMU's start values
             self._store(group, where, self._convert(v, self._start_value(v), "start"))
         self._output_plan = [
@@ -500,6 +504,16 @@ class FmuComponent(Component):
             by_function.setdefault(self._access[v.type].function, []).append(v)
         return [_Group(self._access[members[0].type], members)
                 for members in by_function.values()]
+
+    @staticmethod
+    def _fast_type(variable: _Variable):
+        """The Python type ``set_input`` stores without conversion (None: always convert)."""
+        if variable.type in ("Float32", "Float64"):
+            return float if variable.shape == () else np.ndarray
+        if variable.type in _INTEGER_RANGES and variable.shape == ():
+            variable.low, variable.high = _INTEGER_RANGES[variable.type]
+            return int
+        return None
 
     def _start_value(self, variable: _Variable):
         """Start value(s) declared in modelDescription.xml, typed (defaults where none)."""
@@ -577,6 +591,8 @@ class FmuComponent(Component):
             self._call("enterInitializationMode", self.slave.enterInitializationMode)
             self._do_step = self.slave.fmi2DoStep
         self._component = self.slave.component
+        self._input_calls = [self._bind("set", g) for g in self._inputs]
+        self._output_calls = [(self._bind("get", g), g, plan) for g, plan in self._output_plan]
         self._set_parameters(parameters)
         self._write_inputs()
         self._call("exitInitializationMode", self.slave.exitInitializationMode)
@@ -728,24 +744,31 @@ class FmuComponent(Component):
         return function, args
 
     def _write_inputs(self) -> None:
-        for group in self._inputs:
-            self._transfer("set", "set inputs", group)
+        first = len(self.log)
+        try:
+            for function, args in self._input_calls:
+                function(*args)
+        except FMICallException as exc:
+            self._fail("set inputs", first, exc)
 
     def _read_outputs(self) -> None:
         latest = {}
-        for group, plan in self._output_plan:
-            self._transfer("get", "get outputs", group)
-            kind = group.access.function
-            if group.view is not None:
-                values = group.view.copy()
-                if self.fmi == 2 and kind == "Boolean":
-                    values = values != 0
-                scalars = values.tolist()
+        first = len(self.log)
+        for (function, args), group, plan in self._output_calls:
+            try:
+                function(*args)
+            except FMICallException as exc:
+                self._fail("get outputs", first, exc)
+            view = group.view
+            if view is not None:
+                if group.bool_ints:  # FMI 2 Booleans are C ints
+                    view = view != 0
+                scalars = view.tolist() if group.has_scalars else None
                 for key, where, shape in plan:
                     latest[key] = scalars[where.start] if not shape else \
-                        values[where].reshape(shape)
+                        view[where].reshape(shape).copy()
                 continue
-            if kind == "String":
+            if group.access.function == "String":
                 items = [b.decode("utf-8", "replace") if b is not None else ""
                          for b in group.buffer]
             else:
@@ -775,22 +798,20 @@ class FmuComponent(Component):
         if slot is None:
             raise ValidationError("input", f"one of {list(self.input_names)} of {self.name}",
                                   f"got {name!r}")
-        group, where, shape, variable = slot
-        if group.view is not None and variable.type == "Float64":
-            # the common case, kept cheap: a float or a float array
-            if shape == ():
-                if isinstance(value, (bool, np.bool_)) or not isinstance(
-                        value, (float, int, np.floating, np.integer)):
-                    raise ValidationError(f"{self.name}.{name}", "a Float64 number",
-                                          f"got {value!r}")
-                group.view[where.start] = value
-            else:
-                array = np.asarray(value)
-                if array.shape != shape or array.dtype.kind not in "iuf":
-                    self._convert(variable, value, "input")  # raises the right message
-                group.view[where] = array.ravel()
-        else:
-            self._store(group, where, self._convert(variable, value, "input"))
+        group, where, shape, variable, fast = slot
+        kind = type(value)
+        # the common cases, kept cheap: a float to a Float, an int to an Int, a float array
+        if (fast is float and kind is float) or (
+                fast is int and kind is int and variable.low <= value <= variable.high):
+            group.view[where.start] = value
+            self.inputs[name] = value
+            return
+        if fast is np.ndarray and kind is np.ndarray and value.shape == shape \
+                and value.dtype.kind in "iuf":
+            group.view[where] = value.ravel()
+            self.inputs[name] = value
+            return
+        self._store(group, where, self._convert(variable, value, "input"))
         self.inputs[name] = value
 
     def step(self, t: float, dt: float) -> None:
