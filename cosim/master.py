@@ -261,7 +261,8 @@ class _Recorder:
         self.rows = 0
         self.capacity = 0
         self.time = np.empty(0)
-        self.layouts: dict[int, tuple] = {}   # id(component) -> (n_keys, [(key, block)])
+        # id(component) -> (n_keys, [(signal, block)], [(signal, block, width)])
+        self.layouts: dict[int, tuple] = {}
         self.blocks: dict[str, np.ndarray] = {}  # "component.signal" -> (capacity[, n])
         self.order: list[str] = []
 
@@ -278,15 +279,26 @@ class _Recorder:
             try:
                 for signal, block in layout[1]:
                     block[row] = outputs[signal]
-            except (KeyError, ValueError, TypeError):
+                for signal, block, width in layout[2]:
+                    value = outputs[signal]
+                    if len(value) != width:  # numpy would broadcast a length-1 array
+                        raise ValueError(signal)
+                    block[row] = value
+            except (KeyError, ValueError, TypeError):  # keys or lengths changed: the slow way
                 layout = self._layout(component, outputs)
-                for signal, block in layout[1]:
-                    block[row] = outputs[signal]
+                for signal, block, *_ in layout[1] + layout[2]:
+                    value = outputs[signal]
+                    if block.ndim == 2:
+                        block[row] = _missing(block.dtype)
+                        value = np.atleast_1d(value)
+                        block[row, :len(value)] = value
+                    else:
+                        block[row] = value
         self.rows = row + 1
 
     def _layout(self, component, outputs) -> tuple:
         dtypes = component.record_dtypes()
-        entries = []
+        scalars, arrays = [], []
         for signal, value in outputs.items():
             ndim = np.ndim(value)
             if ndim > 1:
@@ -295,13 +307,24 @@ class _Recorder:
             dtype = np.dtype(dtypes.get(signal, np.float64))
             width = () if ndim == 0 else (len(value),)
             block = self.blocks.get(key)
-            if block is None or block.shape[1:] != width:
+            if block is None:
                 block = self._new_block(dtype, width)
-                if key not in self.blocks:
-                    self.order.append(key)
+                self.order.append(key)
                 self.blocks[key] = block
-            entries.append((signal, block))
-        layout = (len(outputs), entries)
+            elif block.shape[1:] != width and (block.ndim == 1 or width == ()
+                                               or width[0] > block.shape[1]):
+                # a scalar became an array (or the reverse), or an array grew: widen
+                widest = (max(block.shape[1] if block.ndim == 2 else 1,
+                              width[0] if width else 1),)
+                grown = self._new_block(np.result_type(block.dtype, dtype), widest)
+                grown[:self.rows, :(block.shape[1] if block.ndim == 2 else 1)] = \
+                    block[:self.rows].reshape(self.rows, -1)
+                self.blocks[key] = block = grown
+            if block.ndim == 1:
+                scalars.append((signal, block))
+            else:
+                arrays.append((signal, block, block.shape[1]))
+        layout = (len(outputs), scalars, arrays)
         self.layouts[id(component)] = layout
         return layout
 
@@ -321,8 +344,10 @@ class _Recorder:
             renamed[id(block)] = grown
             self.blocks[key] = grown
         self.capacity = capacity
-        self.layouts = {cid: (n, [(signal, renamed[id(block)]) for signal, block in entries])
-                        for cid, (n, entries) in self.layouts.items()}
+        self.layouts = {cid: (n, [(signal, renamed[id(block)]) for signal, block in scalars],
+                              [(signal, renamed[id(block)], width)
+                               for signal, block, width in arrays])
+                        for cid, (n, scalars, arrays) in self.layouts.items()}
 
     def frame(self):
         import pandas as pd
