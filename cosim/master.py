@@ -2,9 +2,9 @@
 
 Source: paper section "Digital twin as a distributed particle simulation"
 (each asset a = operator u_a(t, dt) propagating its particles by one
-propagation step dt; assets exchange signals and particles) and DESIGN.md
-section 4 (the master steps all assets with a communication step, exchanges
-signals and particles and records time series).
+propagation step dt; assets exchange signals and particles): the master
+steps all assets with a communication step, exchanges signals and records
+time series.
 
 The API is deliberately small (after mosaik)::
 

@@ -1,4 +1,4 @@
-"""Generate and build the crusher and mill FMUs (DESIGN.md section 5).
+"""Generate and build the crusher and mill FMUs (fmus/README.md).
 
 Each model ``fmus/<name>/`` has one C source ``model.c`` (the physics, see
 its header comment) and ``interface.json`` (every variable: name, causality,

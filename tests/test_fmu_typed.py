@@ -278,3 +278,32 @@ def test_cli_info_lists_every_variable(fmi, capsys):
                       "native_type": "Float64" if fmi == 3 else "Real", "shape": [16],
                       "unit": "kg", "start": "0.0 (each element)",
                       "description": charge["description"], "items": {}}
+
+
+@pytest.mark.parametrize("fmi", [3, 2])
+def test_parameters_of_every_type_from_a_scenario_table(fmi):
+    """A scenario's [crusher.parameters] table (TOML) keeps each value's type for the FMU."""
+    import tomllib
+
+    from cosim.scenario import _parameters
+
+    text = "\n".join(["[parameters]", 'p_string = "gap="', "p_boolean = true",
+                      "p_int32 = -2000000000", "p_float64 = 2.5", 'p_enumeration = "high"']
+                     + (["p_int8 = -100", "p_uint16 = 60000", 'p_binary = "0a0b"',
+                         "p_float32 = 1.5"] if fmi == 3 else []))
+    parameters = _parameters(tomllib.loads(text), "crusher")
+    fmu = FmuComponent(typed_fmu_file("all_types", fmi), parameters=parameters)
+    try:
+        fmu.step(0.0, 1.0)
+        outputs = fmu.outputs()
+        assert outputs["y_string"] == "gap=0.25 m" and outputs["y_boolean"] is True
+        assert outputs["y_int32"] == -2000000000 + 100000000
+        assert outputs["y_enumeration"] == (1 + 3 - 2) % 3 + 1
+        if fmi == 3:
+            assert outputs["y_int8"] == -100 + 20 and outputs["y_binary"] == b"\x0a\x0b\xff"
+    finally:
+        fmu.finish()
+    with pytest.raises(ValidationError, match="crusher.parameters.p_float64: must be a finite"):
+        _parameters(tomllib.loads("[parameters]\np_float64 = nan"), "crusher")
+    with pytest.raises(ValidationError, match="p_binary: must be Binary: bytes or a hex string"):
+        FmuComponent(typed_fmu_file("all_types", 3), parameters={"p_binary": "xyz"})
