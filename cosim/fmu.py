@@ -52,7 +52,11 @@ API (stable; other modules rely on it)::
   early, the component runs the event iteration (``fmi3EnterEventMode``,
   ``fmi3UpdateDiscreteStates`` until no update is needed,
   ``fmi3EnterStepMode``) and completes the step, as fmpy's ``simulate_fmu``
-  with ``use_event_mode=True, early_return_allowed=True``.
+  with ``use_event_mode=True, early_return_allowed=True``; ``events_handled``
+  counts them. (FMI 2 Co-Simulation has no event mode: the FMU handles its
+  events inside ``doStep``.)
+* ``describe_fmu(path)`` (``minetwin fmus info``) lists an FMU's attributes
+  and variables without instantiating it.
 """
 
 from __future__ import annotations
