@@ -307,3 +307,30 @@ def test_parameters_of_every_type_from_a_scenario_table(fmi):
         _parameters(tomllib.loads("[parameters]\np_float64 = nan"), "crusher")
     with pytest.raises(ValidationError, match="p_binary: must be Binary: bytes or a hex string"):
         FmuComponent(typed_fmu_file("all_types", 3), parameters={"p_binary": "xyz"})
+
+
+def test_plant_run_stopped_by_an_fmu_says_so_in_its_summary(tmp_path):
+    """The example plant with a stair counter added: the run ends at 5 s, the summary says why."""
+    import json
+    from pathlib import Path
+
+    from cosim.scenario import build, load, summarize, write_outputs
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "step_response.toml"
+    simulation = build(load(example), progress=False)
+    simulation.master.add(FmuComponent(typed_fmu_file("counter", 3), name="stair",
+                                       parameters={"stop_time": 5.0}))
+    try:
+        simulation.run(until=20.0)
+        summary = summarize(simulation)
+        assert summary["simulated_s"] == 5.0 and simulation.timeseries.index[-1] == 5.0
+        assert summary["stopped_by"] == {
+            "component": "stair", "time": 5.0,
+            "reason": "counter.fmu requested to terminate the simulation "
+                      "(fmi3DoStep terminateSimulation)"}
+        written = write_outputs(simulation, tmp_path)
+        assert json.loads((tmp_path / "summary.json").read_text())["stopped_by"] == \
+            written["stopped_by"]
+        assert simulation.timeseries["stair.counter"].dtype == np.int32
+    finally:
+        simulation.close()
