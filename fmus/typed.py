@@ -6,14 +6,16 @@ FMI 3 Binary, stop requests and events inside a step. Those cases have test
 models of our own in ``tests/fmus/<name>/``: ``model.json`` (identifier,
 description, whether FMI 3 event mode is offered, enumeration types, every
 variable: name, FMI 3 type, causality, start, unit, description, and
-``"fmi": [3]`` for FMI 3-only types) and ``model.c`` implementing
+``"fmi": [3]`` for FMI 3-only types, ``"shape": [n]`` for a 1-D array of
+numbers or Booleans) and ``model.c`` implementing
 ``tests/fmus/common/typed_model.h``. From these this module generates
 
 * ``variables.h``: the struct ``ModelData`` (one field per variable), the
   table ``VARIABLES`` (value reference, type, causality, field offset) and
   ``set_start_values``,
 * ``modelDescription.xml`` for FMI 3.0 and FMI 2.0 (value reference = index
-  in model.json + 1, 0 = time; generation tool and date),
+  in model.json + 1, 0 = time; FMI 2 array elements ``name[i]`` get
+  1000 * that + i - 1; generation tool and date),
 
 and compiles them with ``tests/fmus/common/fmi3_typed.c`` / ``fmi2_typed.c``
 through ``fmus.build.compile_fmu`` into ``fmus/build/test/<name>.fmu`` and
@@ -83,7 +85,27 @@ def _c_string(text: str) -> str:
     return json.dumps(text)  # a JSON string of ASCII text is a valid C string literal
 
 
+def _size(v: dict) -> int:
+    size = 1
+    for extent in v.get("shape", []):
+        size *= extent
+    return size
+
+
+def _fmi2_elements(v: dict) -> list[tuple[int, str]]:
+    """(value reference, name) of each FMI 2 scalar of an array variable."""
+    return [(1000 * v["vr"] + i, f"{v['name']}[{i + 1}]") for i in range(_size(v))]
+
+
+def _starts(v: dict) -> list:
+    start = v["start"]
+    return list(start) if isinstance(start, list) else [start] * _size(v)
+
+
 def _c_start(v: dict, fmi: int) -> str:
+    if v.get("shape") and "start" in v:
+        return "\n".join(_c_start({**v, "shape": [], "name": f"{v['name']}[{i}]", "start": x}, fmi)
+                         for i, x in enumerate(_starts(v)))
     name, kind, start = v["name"], v["type"], v.get("start")
     if kind == "String":
         return f"    strcpy(m->{name}, {_c_string(start or '')});"
@@ -125,13 +147,20 @@ def variables_header(spec: dict, token: str, fmi: int) -> str:
                       f"    size_t {v['name']}_size;"]
         else:
             ctype = {"Boolean": boolean, "Enumeration": enumeration}.get(kind, _C_TYPES.get(kind))
-            lines.append(f"    {ctype} {v['name']};")
+            size = f"[{_size(v)}]" if v.get("shape") else ""
+            lines.append(f"    {ctype} {v['name']}{size};")
     lines += ["} ModelData;", "static const VariableInfo VARIABLES[] = {",
-              '    {0, T_FLOAT64, C_INDEPENDENT, offsetof(ModelData, time), 0, "time"},']
+              '    {0, T_FLOAT64, C_INDEPENDENT, offsetof(ModelData, time), 0, 1, "time"},']
     for v in variables:
         size = f"offsetof(ModelData, {v['name']}_size)" if v["type"] == "Binary" else "0"
-        lines.append(f"    {{{v['vr']}, T_{v['type'].upper()}, {_CAUSALITY[v['causality']]}, "
-                     f"offsetof(ModelData, {v['name']}), {size}, \"{v['name']}\"}},")
+        head = f"    {{{{{{vr}}, T_{v['type'].upper()}, {_CAUSALITY[v['causality']]}, "
+        if v.get("shape") and fmi == 2:  # one scalar per element, name[1]..name[n]
+            for i, (vr, name) in enumerate(_fmi2_elements(v)):
+                lines.append(head.format(vr=vr) + f"offsetof(ModelData, {v['name']}[{i}]), 0, 1, "
+                             f"\"{name}\"}},")
+        else:
+            lines.append(head.format(vr=v["vr"]) + f"offsetof(ModelData, {v['name']}), {size}, "
+                         f"{_size(v)}, \"{v['name']}\"}},")
     lines += ["};", "#define N_VARIABLES (sizeof VARIABLES / sizeof VARIABLES[0])",
               "static inline void set_start_values(ModelData *m) {",
               "    memset(m, 0, sizeof *m);"]
@@ -158,10 +187,10 @@ def _variability(v: dict) -> str:
 def _start_attribute(v: dict) -> str:
     if v["causality"] == "output" or "start" not in v or v["type"] in ("String", "Binary"):
         return ""
-    start = v["start"]
+    starts = _starts(v) if v.get("shape") else [v["start"]]
     if v["type"] == "Boolean":
-        start = "true" if start else "false"
-    return f' start="{start}"'
+        starts = ["true" if x else "false" for x in starts]
+    return f' start="{" ".join(str(x) for x in starts)}"'
 
 
 def _units(variables) -> list[str]:
@@ -205,6 +234,9 @@ def model_description_fmi3(spec: dict, token: str) -> str:
         if v["type"] in ("String", "Binary") and v["causality"] != "output":
             lines.append(f'    <{v["type"]} {attributes}><Start value="{v.get("start", "")}"/>'
                          f'</{v["type"]}>')
+        elif v.get("shape"):
+            dims = "".join(f'<Dimension start="{extent}"/>' for extent in v["shape"])
+            lines.append(f'    <{v["type"]} {attributes}>{dims}</{v["type"]}>')
         else:
             lines.append(f'    <{v["type"]} {attributes}/>')
     outputs = [v["vr"] for v in variables if v["causality"] == "output"]
@@ -236,7 +268,16 @@ def model_description_fmi2(spec: dict, token: str) -> str:
               '    <ScalarVariable name="time" valueReference="0" causality="independent" '
               'variability="continuous" description="simulation time"><Real/></ScalarVariable>']
     outputs = []
-    for index, v in enumerate(variables, start=2):
+    scalars = []
+    for v in variables:
+        if v.get("shape"):
+            scalars += [{**v, "shape": [], "vr": vr, "name": name, "start": x} if "start" in v
+                        else {**v, "shape": [], "vr": vr, "name": name}
+                        for (vr, name), x in zip(_fmi2_elements(v), _starts(v) if "start" in v
+                                                 else [None] * _size(v))]
+        else:
+            scalars.append(v)
+    for index, v in enumerate(scalars, start=2):
         element = _FMI2_ELEMENTS[v["type"]]
         initial = ' initial="exact"' if v["causality"] == "parameter" else ""
         if v["causality"] == "output":

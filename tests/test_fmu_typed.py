@@ -6,6 +6,8 @@ communication step. The FMUs are our own test models (tests/fmus/)."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from fmpy import simulate_fmu
@@ -105,7 +107,8 @@ INPUTS = {
     "u_float32": 0.1, "u_float64": 0.5, "u_int8": 27, "u_uint8": 55, "u_int16": 2767,
     "u_uint16": 5535, "u_int32": 147483647, "u_uint32": 294967295, "u_int64": -223372036854775808,
     "u_uint64": 446744073709551615, "u_boolean": True, "u_string": "0.25 m",
-    "u_binary": b"\xff\x00", "u_enumeration": 2}
+    "u_binary": b"\xff\x00", "u_enumeration": 2,
+    "u_int32_array": np.array([5, -7, 11], dtype=np.int32), "u_boolean_array": [False, True]}
 ENUMERATION = {"off": 1, "low": 2, "high": 3}
 
 
@@ -115,7 +118,9 @@ def expected_outputs(fmi, time):
          "y_int32": p["p_int32"] + INPUTS["u_int32"],
          "y_boolean": p["p_boolean"] != INPUTS["u_boolean"],
          "y_string": p["p_string"] + INPUTS["u_string"],
-         "y_enumeration": (INPUTS["u_enumeration"] + p["p_enumeration"] - 2) % 3 + 1}
+         "y_enumeration": (INPUTS["u_enumeration"] + p["p_enumeration"] - 2) % 3 + 1,
+         "y_int32_array": 2 * INPUTS["u_int32_array"] + p["p_int32"],
+         "y_boolean_array": ~np.array(INPUTS["u_boolean_array"])}
     if fmi == 3:
         y["y_float32"] = float(np.float32(p["p_float32"]) + np.float32(INPUTS["u_float32"]))
         y["y_binary"] = bytes.fromhex(p["p_binary"]) + INPUTS["u_binary"]
@@ -135,9 +140,16 @@ def test_every_variable_type_is_read_recorded_and_written(fmi):
     parameters, inputs = _for(fmi, PARAMETERS), _for(fmi, INPUTS)
     master, fmu, series = run_alone(path, 2.0, parameters=parameters, inputs=inputs)
     for name, value in expected_outputs(fmi, 2.0).items():
+        if np.ndim(value):  # arrays: numpy arrays of the type, recorded as name[k] columns
+            assert np.array_equal(fmu.outputs()[name], value), name
+            assert fmu.outputs()[name].dtype == value.dtype, name
+            recorded = [series[f"fmu.{name}[{k}]"].iloc[-1] for k in range(len(value))]
+            assert np.array_equal(recorded, value), name
+            continue
         recorded = series[f"fmu.{name}"].iloc[-1]
         assert recorded == value and type(fmu.outputs()[name]) is type(value), name
-    dtypes = {"y_int32": np.int32, "y_boolean": np.bool_, "y_enumeration": np.int64}
+    dtypes = {"y_int32": np.int32, "y_boolean": np.bool_, "y_enumeration": np.int64,
+              "y_int32_array[2]": np.int32, "y_boolean_array[1]": np.bool_}
     if fmi == 3:
         dtypes.update(y_uint64=np.uint64, y_int64=np.int64, y_int8=np.int8, y_float32=np.float32)
     for name, dtype in dtypes.items():
@@ -150,14 +162,24 @@ def test_every_variable_type_is_read_recorded_and_written(fmi):
     # fmpy with the same parameters and inputs (as start values) on the same step
     start_values = {**{k: ENUMERATION.get(v, v) if k == "p_enumeration" else v
                        for k, v in parameters.items()}, **inputs}
+    for name in ("u_int32_array", "u_boolean_array"):  # fmpy: lists; FMI 2: the elements
+        values = [x.item() if hasattr(x, "item") else x for x in start_values.pop(name)]
+        start_values.update({name: values} if fmi == 3 else
+                            {f"{name}[{k + 1}]": x for k, x in enumerate(values)})
     if fmi == 3:  # fmpy takes Binary start values as hex text
         start_values["u_binary"] = inputs["u_binary"].hex()
     theirs = reference(path, fmi, step=0.5, stop_time=2.0, start_values=start_values)
     matched = on_times(theirs, list(series.index))
     compared = [n for n in theirs.dtype.names if n != "time"]
-    assert len(compared) == (12 if fmi == 3 else 4)  # fmpy records numbers and Booleans
+    assert len(compared) == (14 if fmi == 3 else 9)  # fmpy records numbers and Booleans
     for name in compared:
-        ours = series[f"fmu.{name}"].to_numpy()
+        if theirs[name].ndim == 2:  # an FMI 3 array: our columns name[0]..
+            ours = np.stack([series[f"fmu.{name}[{k}]"] for k in range(theirs[name].shape[1])],
+                            axis=1)
+        else:  # FMI 2 elements name[1].. are our name[0]..
+            element = re.match(r"^(.+)\[(\d+)\]$", name)
+            column = f"{element[1]}[{int(element[2]) - 1}]" if element else name
+            ours = series[f"fmu.{column}"].to_numpy()
         if ours.dtype.kind in "iub":  # integers compared exactly, not through floats
             assert np.array_equal(ours, matched[name]), name
             difference = 0 if np.array_equal(ours, matched[name]) else None
@@ -178,6 +200,9 @@ def test_inputs_and_parameters_are_type_checked(fmi):
                     ("u_float64", "1.0", "a Float64 number"),
                     ("u_enumeration", "medium", "one of the items"),
                     ("u_enumeration", 4, "one of the items")]
+        refusals += [("u_int32_array", [1, 2, 2 ** 40], "Int32 integer in"),
+                     ("u_int32_array", [1, 2], r"an array of shape \(3,\)"),
+                     ("u_boolean_array", [1, 0], "a Boolean")]
         if fmi == 3:
             refusals += [("u_int8", 200, "Int8 integer in -128..127"),
                          ("u_uint64", -1, "UInt64 integer in 0..18446744073709551615"),

@@ -2,7 +2,8 @@
  * u_<type> in that type's own C arithmetic (integers wrap as C does; the
  * tests stay in range): numbers p + u (Float64: p + u * time), Boolean
  * u xor p, String and Binary p followed by u (truncated to the capacity),
- * Enumeration Level (u + p - 2) mod 3 + 1. FMI 2 has the Real, Integer,
+ * Enumeration Level (u + p - 2) mod 3 + 1; arrays: Int32[3] 2 u + p_int32,
+ * Boolean[2] not u (FMI 2: elements name[1]..). FMI 2 has the Real, Integer,
  * Boolean, String and Enumeration variables only. */
 #include <stdio.h>
 #include <string.h>
@@ -29,6 +30,8 @@ void model_outputs(ModelData *m) {
     memcpy(m->y_string + head_text, m->u_string, tail_text);
     m->y_string[head_text + tail_text] = '\0';
     m->y_enumeration = (m->u_enumeration + m->p_enumeration - 2) % 3 + 1;
+    for (int i = 0; i < 3; i++) m->y_int32_array[i] = 2 * m->u_int32_array[i] + m->p_int32;
+    for (int i = 0; i < 2; i++) m->y_boolean_array[i] = !m->u_boolean_array[i];
 #if FMI_VERSION == 3
     m->y_float32 = m->p_float32 + m->u_float32;
     m->y_int8 = (int8_t)(m->p_int8 + m->u_int8);

@@ -1,5 +1,6 @@
 /* FMI 2.0 Co-Simulation wrapper of a typed test model (see typed_model.h):
- * scalar Real, Integer, Boolean, String and Enumeration variables; events
+ * Real, Integer, Boolean, String and Enumeration variables (array elements
+ * name[i] are scalars of their own); events
  * are handled inside doStep (FMI 2 Co-Simulation has no event mode); a stop
  * request is fmi2Discard with fmi2GetBooleanStatus(fmi2Terminated) true and
  * fmi2GetRealStatus(fmi2LastSuccessfulTime) the model's time. FMU state and

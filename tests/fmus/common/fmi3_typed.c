@@ -1,5 +1,5 @@
 /* FMI 3.0 Co-Simulation wrapper of a typed test model (see typed_model.h):
- * scalar variables of every FMI 3 type (not Clock), event mode with early
+ * variables of every FMI 3 type (not Clock; arrays of numbers and Booleans), event mode with early
  * return when the importer asks for it (hasEventMode), stop requests through
  * doStep's terminateSimulation. FMU state and every other function are
  * exported and refuse with a log message. */
@@ -63,29 +63,38 @@ static const VariableInfo *find(Instance *self, fmi3ValueReference vr, int a, in
 
 #define VALUE(self, v) ((char *)&(self)->m + (v)->offset)
 
+static fmi3Status too_few(Instance *self, const char *function, size_t nValues) {
+    log_error(self, "%s: nValues = %zu is too small", function, nValues);
+    return fmi3Error;
+}
+
 #define NUMERIC_ACCESS(NAME, CTYPE, TYPE_A, TYPE_B)                                             \
     fmi3Status fmi3Get##NAME(fmi3Instance instance, const fmi3ValueReference valueReferences[], \
                              size_t nValueReferences, CTYPE values[], size_t nValues) {         \
         Instance *self = (Instance *)instance;                                                  \
-        if (nValues < nValueReferences) return unsupported(instance, "arrays in fmi3Get" #NAME); \
+        size_t n = 0;                                                                           \
         model_outputs(&self->m);                                                                \
         for (size_t i = 0; i < nValueReferences; i++) {                                         \
             const VariableInfo *v = find(self, valueReferences[i], TYPE_A, TYPE_B,              \
                                          "fmi3Get" #NAME, 0);                                   \
             if (!v) return fmi3Error;                                                           \
-            memcpy(&values[i], VALUE(self, v), sizeof(CTYPE));                                  \
+            if (n + v->count > nValues) return too_few(self, "fmi3Get" #NAME, nValues);         \
+            memcpy(&values[n], VALUE(self, v), v->count * sizeof(CTYPE));                       \
+            n += v->count;                                                                      \
         }                                                                                       \
         return fmi3OK;                                                                          \
     }                                                                                           \
     fmi3Status fmi3Set##NAME(fmi3Instance instance, const fmi3ValueReference valueReferences[], \
                              size_t nValueReferences, const CTYPE values[], size_t nValues) {   \
         Instance *self = (Instance *)instance;                                                  \
-        if (nValues < nValueReferences) return unsupported(instance, "arrays in fmi3Set" #NAME); \
+        size_t n = 0;                                                                           \
         for (size_t i = 0; i < nValueReferences; i++) {                                         \
             const VariableInfo *v = find(self, valueReferences[i], TYPE_A, TYPE_B,              \
                                          "fmi3Set" #NAME, 1);                                   \
             if (!v) return fmi3Error;                                                           \
-            memcpy(VALUE(self, v), &values[i], sizeof(CTYPE));                                  \
+            if (n + v->count > nValues) return too_few(self, "fmi3Set" #NAME, nValues);         \
+            memcpy(VALUE(self, v), &values[n], v->count * sizeof(CTYPE));                       \
+            n += v->count;                                                                      \
         }                                                                                       \
         return fmi3OK;                                                                          \
     }

@@ -2,7 +2,8 @@
  * FMI 3.0 / FMI 2.0 Co-Simulation wrappers (fmi3_typed.c, fmi2_typed.c).
  *
  * Unlike the crusher/mill FMUs (fmus/common, all float64), a test model has
- * scalar variables of any FMI type. fmus/typed.py generates variables.h from
+ * variables of any FMI type: scalars, and 1-D arrays of numbers and Booleans
+ * (FMI 3 array variables; FMI 2 scalars name[1]..name[n]). fmus/typed.py generates variables.h from
  * tests/fmus/<name>/model.json: the struct ModelData (one field per
  * variable, named like it, plus `time`), the table VARIABLES the wrappers
  * use to get and set values by value reference, and set_start_values().
@@ -29,6 +30,7 @@ typedef struct {
     int causality;
     size_t offset;       /* of the value in ModelData */
     size_t size_offset;  /* Binary: of the <name>_size field */
+    size_t count;        /* elements: an FMI 3 array's size; 1 for scalars and FMI 2 elements */
     const char *name;
 } VariableInfo;
 
