@@ -893,6 +893,24 @@ class FmuComponent(Component):
     def outputs(self) -> dict[str, object]:
         return self._latest
 
+    def check_input_type(self, name: str, source_type: str, source: str) -> None:
+        """Refuse connecting an output of FMI type ``source_type`` to input ``name`` if
+        ``set_input`` would refuse its values (called by ``Master.connect``)."""
+        variable = self._input_slot[name][3] if name in self._input_slot else None
+        if variable is None:
+            return
+        numbers = set(_INTEGER_RANGES) | {"Enumeration"}
+        target = variable.type
+        fits = (source_type == target
+                or (target in ("Float32", "Float64") and source_type in numbers | {"Float32",
+                                                                                   "Float64"})
+                or (target in _INTEGER_RANGES and source_type in numbers))
+        if not fits:
+            article = "an" if target[0] in "AEIO" else "a"
+            raise ValidationError(f"connect {source} -> {self.name}.{name}",
+                                  f"an output {article} {target} input takes",
+                                  f"{source} is {source_type}")
+
     def record_dtypes(self) -> dict:
         """numpy dtype of each output in the master's time series (its FMI type)."""
         return {name: RECORD_DTYPES[kind] for name, kind in self.output_types.items()}

@@ -151,6 +151,10 @@ class Master:
         if target.input_names and input not in target.input_names:
             raise ValidationError("input", f"one of {list(target.input_names)} of {target.name}",
                                   f"got {input!r}")
+        source_type = getattr(source, "output_types", {}).get(output)
+        check = getattr(target, "check_input_type", None)
+        if source_type is not None and check is not None:  # typed (FMU) signals: refuse now
+            check(input, source_type, f"{source.name}.{output}")
         connection = Connection(source, output, target, input)
         self.connections.append(connection)
         self._by_target.setdefault(id(target), []).append(connection)

@@ -234,6 +234,18 @@ def test_non_float_outputs_connect_to_inputs_of_their_type():
     np.testing.assert_array_equal(series["typed.y_int32"] - series["stair.counter"],
                                   np.full(5, -2000000000))
     assert series["typed.y_int32"].dtype == np.int32
+    other = Master(step=1.0, progress=False)
+    stair = other.add(FmuComponent(typed_fmu_file("counter", 2), name="stair"))
+    typed = other.add(FmuComponent(typed_fmu_file("all_types", 3), name="typed"))
+    other.connect(stair, "counter", typed, "u_float64")  # an Int32 feeds a Float64
+    for output, input, kind in (("elapsed", "u_int32", "Float64"), ("counter", "u_boolean",
+                                                                     "Int32"),
+                                ("counter", "u_string", "Int32")):
+        with pytest.raises(ValidationError, match=f"connect stair.{output} -> typed.{input}: "
+                                                  f"must be an output a .* input takes "
+                                                  f"\\(stair.{output} is {kind}\\)"):
+            other.connect(stair, output, typed, input)
+    other.finish()
 
 
 @pytest.mark.parametrize("fmi", [3, 2])
