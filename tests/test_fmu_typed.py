@@ -242,7 +242,7 @@ def test_non_float_outputs_connect_to_inputs_of_their_type():
                                                                      "Int32"),
                                 ("counter", "u_string", "Int32")):
         with pytest.raises(ValidationError, match=f"connect stair.{output} -> typed.{input}: "
-                                                  f"must be an output a .* input takes "
+                                                  f"must be an output an? .* input takes "
                                                   f"\\(stair.{output} is {kind}\\)"):
             other.connect(stair, output, typed, input)
     other.finish()
