@@ -405,7 +405,7 @@ class _Group:
         for v in variables:
             self.slices[v.name] = (slice(offset, offset + v.size), v.shape)
             offset += v.size
-        self.binary_keep: list = []  # keeps Binary input buffers alive while the FMU may read them
+        self.binary_keep: dict = {}  # element -> its Binary buffer, alive while the FMU may read it
         self.calls = None  # {"get"|"set": (fmpy function, arguments)}, bound on first use
         self.has_scalars = any(v.shape == () for v in variables)
         self.bool_ints = access.function == "Boolean" and access.dtype is np.int32
@@ -706,10 +706,9 @@ class FmuComponent(Component):
         else:  # Binary: the FMU reads through pointers into buffers we keep alive
             for i, item in zip(range(where.start, where.stop), values):
                 data = ctypes.create_string_buffer(item, max(len(item), 1))
-                group.binary_keep.append((i, data))
+                group.binary_keep[i] = data
                 group.buffer[i] = ctypes.cast(data, ctypes.c_void_p)
                 group.sizes[i] = len(item)
-            group.binary_keep = group.binary_keep[-group.n_values:]
 
     # ---- FMI calls ------------------------------------------------------------------
     def _call(self, what: str, function, *args, **kwargs):
