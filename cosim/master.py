@@ -165,7 +165,7 @@ class Master:
         n_steps = int(round((until - self.time) / self.step))
         if n_steps < 0:
             raise ValidationError("until", f">= current time {self.time:g} s", f"got {until!r}")
-        if self.stopped is not None:
+        if self.stopped is not None and n_steps > 0:
             raise ValidationError("until", f"not past the stop requested by "
                                   f"{self.stopped['component']} at {self.stopped['time']:g} s",
                                   f"got {until!r}")
