@@ -1,4 +1,4 @@
-"""Generate and build the test FMUs: scalar variables of every FMI type.
+"""Generate and build the test FMUs: variables of every FMI type (scalars, 1-D arrays).
 
 The crusher and mill FMUs (fmus/build.py) are all float64; the master must
 also take FMUs with integers, Booleans, Strings, Enumerations, Float32 and

@@ -83,9 +83,7 @@ def test_stop_request_ends_the_run_at_the_fmus_time(fmi, stop_time):
         master.run(30.0)
 
 
-def test_stop_request_is_in_the_scenario_summary_shape():
-    from cosim.master import StopRequest
-
+def test_stopped_names_the_component_the_time_and_the_fmi_status():
     master = Master(step=1.0, progress=False)
     master.add(FmuComponent(typed_fmu_file("counter", 2), name="stair",
                             parameters={"stop_time": 3.0}))
@@ -94,7 +92,6 @@ def test_stop_request_is_in_the_scenario_summary_shape():
     assert master.stopped == {"component": "stair", "time": 3.0,
                               "reason": "counter-fmi2.fmu requested to terminate the simulation "
                                         "(fmi2DoStep returned fmi2Discard, fmi2Terminated = true)"}
-    assert StopRequest(3.0, "x").time == 3.0
 
 
 # ---- every variable type -----------------------------------------------------------------
