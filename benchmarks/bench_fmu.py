@@ -235,7 +235,8 @@ def bench_mill_operator(particles: int, steps: int = 20) -> dict:
                 x, _ = mill_step_mass(x, *args, method=method)
 
         runs = [_timed(run) for _ in range(5)]
-        result[f"{method}_us_per_particle_step"] = min(r[1] for r in runs) / (steps * particles) * 1e6
+        result[f"{method}_us_per_particle_step"] = \
+            min(r[1] for r in runs) / (steps * particles) * 1e6
         result[f"{method}_wall_us_per_particle_step"] = \
             min(r[0] for r in runs) / (steps * particles) * 1e6
     return result

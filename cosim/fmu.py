@@ -578,7 +578,8 @@ class FmuComponent(Component):
             self._call("enterInitializationMode", self.slave.enterInitializationMode, startTime=0.0)
             self._flags = [fmi3Boolean() for _ in range(3)]
             self._last_time = fmi3Float64()
-            self._flag_refs = [ctypes.byref(f) for f in self._flags] + [ctypes.byref(self._last_time)]
+            self._flag_refs = ([ctypes.byref(f) for f in self._flags]
+                               + [ctypes.byref(self._last_time)])
             self._do_step = self.slave.fmi3DoStep
         else:
             from fmpy.fmi2 import defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE

@@ -254,7 +254,8 @@ def model_description_fmi2(spec: dict, token: str) -> str:
              f'<fmiModelDescription fmiVersion="2.0" {_generation(spec, token)} guid="{token}">',
              f'  <CoSimulation modelIdentifier="{ident}" '
              'canHandleVariableCommunicationStepSize="true">',
-             "    <SourceFiles>", '      <File name="model.c"/>', '      <File name="fmi2_typed.c"/>',
+             "    <SourceFiles>", '      <File name="model.c"/>',
+             '      <File name="fmi2_typed.c"/>',
              "    </SourceFiles>", "  </CoSimulation>", *_units(variables)]
     if spec.get("enumerations"):
         lines.append("  <TypeDefinitions>")

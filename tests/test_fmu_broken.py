@@ -138,7 +138,8 @@ def test_cli_validate_exits_2_with_one_line(case, fmi, tmp_path, capsys, no_left
     captured = capsys.readouterr()
     lines = captured.err.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in captured.err
-    assert lines[0].startswith("minetwin fmus validate: error: fmu: must be") and str(path) in lines[0]
+    assert lines[0].startswith("minetwin fmus validate: error: fmu: must be")
+    assert str(path) in lines[0]
     assert main(["fmus", "info", str(path)]) == (0 if case == "without_binary" else 2)
 
 
