@@ -65,6 +65,7 @@ import ctypes
 import re
 import shutil
 import tempfile
+import warnings
 import weakref
 import zipfile
 import zlib
@@ -455,6 +456,13 @@ class FmuComponent(Component):
 
         usable = [v for v in self.variables.values() if v.type in self._access
                   and "incomplete" not in v.shape]
+        # FMI 3 Clocks (Scheduled Execution and clocked Co-Simulation) are not exchanged
+        self.skipped_variables = sorted(
+            v.name for v in description.modelVariables
+            if v.causality in ("input", "output") and self.fmi == 3 and v.type == "Clock")
+        if self.skipped_variables:
+            warnings.warn(f"{self.path.name}: Clock variables are not exchanged by the master: "
+                          f"{self.skipped_variables}", stacklevel=2)
         self._inputs = self._groups([v for v in usable if v.causality == "input"])
         self._outputs = self._groups([v for v in usable if v.causality == "output"])
         self.input_names = tuple(v.name for g in self._inputs for v in g.variables)

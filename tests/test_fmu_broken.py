@@ -22,7 +22,7 @@ from cosim.fmu import (CRUSHER_INTERFACE, MILL_INTERFACE, FmuCallError, FmuCompo
 def built_fmus():
     from fmus.build import build_all
 
-    build_all(typed=())
+    build_all()
 
 
 @pytest.fixture
@@ -177,3 +177,26 @@ def test_failure_after_extraction_leaves_no_folder(tmp_path, no_leftover_folders
         FmuComponent(source, parameters={"gap_width": -1.0})
     with pytest.raises(ValidationError, match="parameter 'gap'"):
         FmuComponent(source, parameters={"gap": 1.0})
+
+
+def test_clock_variables_are_named_in_a_warning(tmp_path):
+    """FMI 3 Clocks are not exchanged: an FMU with one loads, and a warning says so."""
+    from fmus.typed import typed_fmu_file
+
+    clocked = tmp_path / "clocked.fmu"
+    with zipfile.ZipFile(typed_fmu_file("counter", 3)) as src, \
+            zipfile.ZipFile(clocked, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename == "modelDescription.xml":
+                data = data.replace(b"  </ModelVariables>",
+                                    b'    <Clock name="tick" valueReference="99" '
+                                    b'causality="input" variability="discrete"/>\n'
+                                    b"  </ModelVariables>")
+            dst.writestr(item, data)
+    with pytest.warns(UserWarning, match=r"clocked.fmu: Clock variables are not exchanged by "
+                                         r"the master: \['tick'\]"):
+        fmu = FmuComponent(clocked)
+    fmu.step(0.0, 1.0)
+    assert fmu.outputs()["counter"] == 1
+    fmu.finish()
