@@ -14,9 +14,12 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
-# The FMUs (fmus/build/*.fmu) are compiled from fmus/ sources; rebuilt when those change.
+# The FMUs (fmus/build/*.fmu) are compiled from fmus/ sources, the test FMUs
+# (fmus/build/test/*.fmu) from tests/fmus/ sources; rebuilt when those change.
 FMU_STAMP   := fmus/build/.built-stamp
-FMU_SOURCES := $(wildcard fmus/*/interface.json fmus/*/model.c fmus/common/*) fmus/build.py
+FMU_SOURCES := $(wildcard fmus/*/interface.json fmus/*/model.c fmus/common/* \
+                 tests/fmus/*/model.json tests/fmus/*/model.c tests/fmus/common/*) \
+               fmus/build.py fmus/typed.py
 
 $(FMU_STAMP): $(STAMP) $(FMU_SOURCES)
 	$(BIN)/minetwin fmus build

@@ -2,9 +2,9 @@
 
 Source: paper section "Digital twin as a distributed particle simulation"
 (each asset a = operator u_a(t, dt) propagating its particles by one
-propagation step dt; assets exchange signals and particles) and DESIGN.md
-section 4 (the master steps all assets with a communication step, exchanges
-signals and particles and records time series).
+propagation step dt; assets exchange signals and particles): the master
+steps all assets with a communication step, exchanges signals and records
+time series.
 
 The API is deliberately small (after mosaik)::
 
@@ -21,6 +21,17 @@ source's latest output: the value of the current step if the source was
 added earlier (Gauss-Seidel order), else of the previous step. Particles
 move between assets by changing their owner in the shared ``ParticleStore``
 inside the assets' own ``step``; the master only moves signals.
+
+A component may ask to end the simulation by setting ``stop_request`` to a
+``StopRequest(time, reason)`` in its ``step`` (an FMU does when it requests
+termination). The master finishes that communication step, records it at
+the earliest requested time and ends the run; ``Master.stopped`` says which
+component stopped it, when and why.
+
+Recording writes into preallocated columns (grown by doubling): scalars of
+each component's ``outputs()`` and 1-D arrays as ``signal[k]`` columns, of
+the dtype the component declares in ``record_dtypes()`` (an FMU: its
+variables' types) or float64.
 """
 
 from __future__ import annotations
@@ -42,6 +53,14 @@ class CosimulationError(RuntimeError):
     resource (the event store) that any component may hit first."""
 
 
+@dataclass(frozen=True)
+class StopRequest:
+    """A component's request to end the simulation at ``time`` [s], and why."""
+
+    time: float
+    reason: str
+
+
 class Component:
     """Base class of everything the master steps.
 
@@ -54,6 +73,8 @@ class Component:
     name: str = "component"
     input_names: tuple[str, ...] = ()
     """Inputs this component accepts; ``connect`` refuses others (empty: any)."""
+    stop_request: "StopRequest | None" = None
+    """Set in ``step`` to end the simulation (the master reads it after each step)."""
 
     def __init__(self):
         self.inputs: dict[str, object] = {}
@@ -72,6 +93,10 @@ class Component:
 
     def finish(self) -> None:
         pass
+
+    def record_dtypes(self) -> dict:
+        """numpy dtype per output signal for recording (missing: float64)."""
+        return {}
 
 
 @dataclass(frozen=True)
@@ -108,8 +133,10 @@ class Master:
         self.connections: list[Connection] = []
         self._by_target: dict[int, list[Connection]] = {}
         self._steps_done = 0
-        self._records: list[dict[str, float]] = []
+        self._recorder = _Recorder()
         self.wall_s = 0.0
+        self.stopped: dict | None = None
+        """None, or {"component", "time", "reason"} of the stop request that ended the run."""
 
     def add(self, component: Component) -> Component:
         """Add a component; names must be unique."""
@@ -128,30 +155,45 @@ class Master:
         if target.input_names and input not in target.input_names:
             raise ValidationError("input", f"one of {list(target.input_names)} of {target.name}",
                                   f"got {input!r}")
+        source_type = getattr(source, "output_types", {}).get(output)
+        check = getattr(target, "check_input_type", None)
+        if source_type is not None and check is not None:  # typed (FMU) signals: refuse now
+            check(input, source_type, f"{source.name}.{output}")
         connection = Connection(source, output, target, input)
         self.connections.append(connection)
         self._by_target.setdefault(id(target), []).append(connection)
 
     def run(self, until: float) -> "Master":
-        """Advance all components to time ``until`` [s] (continuing from ``self.time``)."""
+        """Advance all components to time ``until`` [s] (continuing from ``self.time``);
+        ends earlier if a component requests a stop (see ``stopped``)."""
         n_steps = int(round((until - self.time) / self.step))
         if n_steps < 0:
             raise ValidationError("until", f">= current time {self.time:g} s", f"got {until!r}")
+        if self.stopped is not None and n_steps > 0:
+            raise ValidationError("until", f"not past the stop requested by "
+                                  f"{self.stopped['component']} at {self.stopped['time']:g} s",
+                                  f"got {until!r}")
         first = self._steps_done
         start = wallclock.perf_counter()
         last_report = start
         latest = {id(c): c.outputs() for c in self.components}
+        inputs = [(c, [(conn.input, id(conn.source), conn.output, conn.source.name)
+                       for conn in self._by_target.get(id(c), ())])
+                  for c in self.components]
+        record = self._recorder.record
         try:
             for k in range(first, first + n_steps):
                 t = k * self.step
-                for component in self.components:
-                    for conn in self._by_target.get(id(component), ()):
-                        value = latest[id(conn.source)].get(conn.output)
-                        if value is None:
+                stops = None
+                for component, connections in inputs:
+                    for name, source, output, source_name in connections:
+                        try:
+                            value = latest[source][output]
+                        except KeyError:
                             raise ValidationError(
-                                "output", f"an output of {conn.source.name}",
-                                f"{conn.output!r} not in {sorted(latest[id(conn.source)])}")
-                        component.set_input(conn.input, value)
+                                "output", f"an output of {source_name}",
+                                f"{output!r} not in {sorted(latest[source])}") from None
+                        component.set_input(name, value)
                     try:
                         component.step(t, self.step)
                     except Exception as exc:
@@ -160,10 +202,15 @@ class Master:
                         raise CosimulationError(
                             f"{component.name} failed at t = {t:g} s: {exc}") from exc
                     latest[id(component)] = component.outputs()
+                    if component.stop_request is not None:
+                        stops = (stops or []) + [component]
                 self._steps_done = k + 1
                 self.time = self._steps_done * self.step
+                if stops:
+                    self._stop(stops, t, latest)
+                    break
                 if self._steps_done % self.record_every == 0:
-                    self._record(latest)
+                    record(self.time, self.components, latest)
                 if self.progress:
                     now = wallclock.perf_counter()
                     if now - last_report > 1.0 or k == first + n_steps - 1:
@@ -175,22 +222,24 @@ class Master:
                 print(file=sys.stderr)
         return self
 
+    def _stop(self, components, t: float, latest) -> None:
+        """End the run at the earliest requested stop time within the step [t, t + step]."""
+        first = min(components, key=lambda c: c.stop_request.time)
+        request = first.stop_request
+        when = min(max(request.time, t), self.time)
+        self.stopped = {"component": first.name, "time": when, "reason": request.reason}
+        self.time = when
+        recorder = self._recorder
+        if recorder.rows == 0 or recorder.time[recorder.rows - 1] != when:
+            recorder.record(when, self.components, latest)
+        if self.progress:
+            print(f"\nstopped at t = {when:g} s by {first.name}: {request.reason}",
+                  file=sys.stderr)
+
     def finish(self) -> None:
         """Let every component release its resources (FMU instances, files)."""
         for component in self.components:
             component.finish()
-
-    def _record(self, latest) -> None:
-        row = {"time": self.time}
-        for component in self.components:
-            for signal, value in latest[id(component)].items():
-                key = f"{component.name}.{signal}"
-                if np.ndim(value) == 0:
-                    row[key] = float(value)
-                elif np.ndim(value) == 1:
-                    for j, item in enumerate(np.asarray(value, dtype=float)):
-                        row[f"{key}[{j}]"] = item
-        self._records.append(row)
 
     def _report(self, until: float, elapsed: float) -> None:
         fraction = self.time / until if until > 0 else 1.0
@@ -203,7 +252,125 @@ class Master:
     def timeseries(self):
         """Recorded outputs as a DataFrame indexed by time [s]; columns ``component.signal``
         (1-D array outputs as ``component.signal[k]``)."""
+        return self._recorder.frame()
+
+
+def _missing(dtype):
+    """Value of a recorded column where its signal is absent."""
+    return np.nan if dtype.kind in "fc" else (None if dtype.kind == "O" else 0)
+
+
+class _Recorder:
+    """Time series in preallocated numpy columns, one block per (component, signal).
+
+    The layout of a component is fixed on its first record; a record whose
+    outputs differ in keys or shapes adds columns (earlier rows: NaN for
+    float columns)."""
+
+    def __init__(self):
+        self.rows = 0
+        self.capacity = 0
+        self.time = np.empty(0)
+        # id(component) -> (n_keys, [(signal, block)], [(signal, block, width)])
+        self.layouts: dict[int, tuple] = {}
+        self.blocks: dict[str, np.ndarray] = {}  # "component.signal" -> (capacity[, n])
+        self.order: list[str] = []
+
+    def record(self, time: float, components, latest) -> None:
+        row = self.rows
+        if row == self.capacity:
+            self._grow()
+        self.time[row] = time
+        for component in components:
+            outputs = latest[id(component)]
+            layout = self.layouts.get(id(component))
+            if layout is None or layout[0] != len(outputs):
+                layout = self._layout(component, outputs)
+            try:
+                for signal, block in layout[1]:
+                    block[row] = outputs[signal]
+                for signal, block, width in layout[2]:
+                    value = outputs[signal]
+                    if len(value) != width:  # numpy would broadcast a length-1 array
+                        raise ValueError(signal)
+                    block[row] = value
+            except (KeyError, ValueError, TypeError):  # keys or lengths changed: the slow way
+                layout = self._layout(component, outputs)
+                for signal, block, *_ in layout[1] + layout[2]:
+                    value = outputs[signal]
+                    if block.ndim == 2:
+                        block[row] = _missing(block.dtype)
+                        value = np.atleast_1d(value)
+                        block[row, :len(value)] = value
+                    else:
+                        block[row] = value
+        self.rows = row + 1
+
+    def _layout(self, component, outputs) -> tuple:
+        dtypes = component.record_dtypes()
+        scalars, arrays = [], []
+        for signal, value in outputs.items():
+            ndim = np.ndim(value)
+            if ndim > 1:
+                continue
+            key = f"{component.name}.{signal}"
+            dtype = np.dtype(dtypes.get(signal, np.float64))
+            width = () if ndim == 0 else (len(value),)
+            block = self.blocks.get(key)
+            if block is None:
+                block = self._new_block(dtype, width)
+                self.order.append(key)
+                self.blocks[key] = block
+            elif block.shape[1:] != width and (block.ndim == 1 or width == ()
+                                               or width[0] > block.shape[1]):
+                # a scalar became an array (or the reverse), or an array grew: widen
+                widest = (max(block.shape[1] if block.ndim == 2 else 1,
+                              width[0] if width else 1),)
+                grown = self._new_block(np.result_type(block.dtype, dtype), widest)
+                grown[:self.rows, :(block.shape[1] if block.ndim == 2 else 1)] = \
+                    block[:self.rows].reshape(self.rows, -1)
+                self.blocks[key] = block = grown
+            if block.ndim == 1:
+                scalars.append((signal, block))
+            else:
+                arrays.append((signal, block, block.shape[1]))
+        layout = (len(outputs), scalars, arrays)
+        self.layouts[id(component)] = layout
+        return layout
+
+    def _new_block(self, dtype, width) -> np.ndarray:
+        block = np.empty((self.capacity, *width), dtype=dtype)
+        block[:] = _missing(dtype)
+        return block
+
+    def _grow(self) -> None:
+        capacity = max(64, 2 * self.capacity)
+        self.time = np.resize(self.time, capacity)
+        renamed = {}
+        for key, block in self.blocks.items():
+            grown = np.empty((capacity, *block.shape[1:]), dtype=block.dtype)
+            grown[:self.capacity] = block
+            grown[self.capacity:] = _missing(block.dtype)  # rows a signal is absent from
+            renamed[id(block)] = grown
+            self.blocks[key] = grown
+        self.capacity = capacity
+        self.layouts = {cid: (n, [(signal, renamed[id(block)]) for signal, block in scalars],
+                              [(signal, renamed[id(block)], width)
+                               for signal, block, width in arrays])
+                        for cid, (n, scalars, arrays) in self.layouts.items()}
+
+    def frame(self):
         import pandas as pd
 
-        frame = pd.DataFrame.from_records(self._records)
-        return frame.set_index("time") if not frame.empty else frame
+        if self.rows == 0:
+            return pd.DataFrame()
+        columns = {}
+        for key in self.order:
+            block = self.blocks[key][:self.rows]
+            if block.ndim == 1:
+                columns[key] = block.copy()
+            else:
+                for j in range(block.shape[1]):
+                    columns[f"{key}[{j}]"] = block[:, j].copy()
+        frame = pd.DataFrame(columns, index=pd.Index(self.time[:self.rows].copy(), name="time"))
+        return frame

@@ -215,13 +215,18 @@ def _conveyor(table: dict, path: str) -> dict:
 
 
 def _parameters(table: dict, path: str) -> dict:
+    """FMU parameters as given (numbers, booleans, strings, or lists of them): the FMU
+    checks each against its variable's type when it loads (cosim.fmu)."""
     params = _table(table, "parameters", path, {})
     for key, value in params.items():
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(
-                value):
-            raise ValidationError(f"{path}.parameters.{key}", "a finite number",
-                                  f"got {value!r}")
-    return {key: float(value) for key, value in params.items()}
+        items = value if isinstance(value, list) else [value]
+        for item in items:
+            if not isinstance(item, (bool, int, float, str)) or (
+                    isinstance(item, float) and not np.isfinite(item)):
+                raise ValidationError(f"{path}.parameters.{key}",
+                                      "a finite number, a boolean, a string or a list of them",
+                                      f"got {value!r}")
+    return dict(params)
 
 
 def validate(raw: dict) -> dict:
@@ -612,6 +617,7 @@ def summarize(simulation: Simulation) -> dict:
         "mass_held_kg": held,
         "mass_balance_rel_error": float(series["plant.mass_balance_rel_error"].max())
         if len(series) else 0.0,
+        "stopped_by": master.stopped,  # None, or the component that requested the stop and why
     }
     means = {"crusher_power_mean_w": "crusher_fmu.power", "mill_power_mean_w": "mill_fmu.power",
              "crusher_zone_hardness_mean": "crusher.zone_hardness",

@@ -1,1 +1,1 @@
-"""Sources and build tooling of the crusher and mill FMUs (DESIGN.md section 5)."""
+"""Sources and build tooling of the crusher and mill FMUs (fmus/README.md)."""

@@ -1,4 +1,4 @@
-"""Generate and build the crusher and mill FMUs (DESIGN.md section 5).
+"""Generate and build the crusher and mill FMUs (fmus/README.md).
 
 Each model ``fmus/<name>/`` has one C source ``model.c`` (the physics, see
 its header comment) and ``interface.json`` (every variable: name, causality,
@@ -40,6 +40,8 @@ COMMON_DIR = SOURCE_DIR / "common"
 BUILD_DIR = SOURCE_DIR / "build"
 MODELS = ("crusher", "mill", "cone_crusher")
 """Models built by ``minetwin fmus build``."""
+TYPED_MODELS = ("counter", "all_types", "level_event")
+"""Test models (tests/fmus/<name>/, fmus/typed.py) built with them into fmus/build/test/."""
 
 FMI_VERSIONS = (3, 2)
 
@@ -138,6 +140,13 @@ def variables_header(spec: dict, token: str) -> str:
     return "\n".join(lines)
 
 
+def generation_date() -> str:
+    """Now in UTC as the FMI generationDateAndTime attribute wants it (xs:dateTime)."""
+    from datetime import datetime, timezone
+
+    return datetime.now(timezone.utc).replace(microsecond=0).isoformat().replace("+00:00", "Z")
+
+
 def _unit_definitions(spec: dict) -> list[str]:
     units = sorted({v["unit"] for v in spec["variables"] if v.get("unit", "1") != "1"} | {"s"})
     lines = ["  <UnitDefinitions>"]
@@ -170,7 +179,8 @@ def model_description_fmi3(spec: dict, token: str) -> str:
         '<?xml version="1.0" encoding="UTF-8"?>',
         f'<fmiModelDescription fmiVersion="3.0" modelName="{ident}" '
         f'description={quoteattr(spec["description"])} instantiationToken="{token}" '
-        'generationTool="MineTwin fmus/build.py" variableNamingConvention="structured">',
+        f'generationTool="MineTwin fmus/build.py" generationDateAndTime="{generation_date()}" '
+        'variableNamingConvention="structured">',
         f'  <CoSimulation modelIdentifier="{ident}" canHandleVariableCommunicationStepSize="true" '
         'canGetAndSetFMUState="true" canSerializeFMUState="true"/>',
         *_unit_definitions(spec),
@@ -204,7 +214,7 @@ def model_description_fmi2(spec: dict, token: str) -> str:
         '<?xml version="1.0" encoding="UTF-8"?>',
         f'<fmiModelDescription fmiVersion="2.0" modelName="{ident}" guid="{token}" '
         f'description={quoteattr(spec["description"])} generationTool="MineTwin fmus/build.py" '
-        'variableNamingConvention="structured">',
+        f'generationDateAndTime="{generation_date()}" variableNamingConvention="structured">',
         f'  <CoSimulation modelIdentifier="{ident}" canHandleVariableCommunicationStepSize="true" '
         'canGetAndSetFMUstate="true" canSerializeFMUstate="true">',
         "    <SourceFiles>",
@@ -244,7 +254,7 @@ def build_description_fmi3(spec: dict) -> str:
             "  </BuildConfiguration>\n</fmiBuildDescription>\n")
 
 
-def _current_token(path: Path) -> str | None:
+def current_token(path: Path) -> str | None:
     if not path.is_file():
         return None
     from fmpy import read_model_description
@@ -272,14 +282,12 @@ def _stdout_to(log):
 
 def build_fmu(name: str, fmi: int = 3, *, force: bool = False) -> tuple[Path, bool]:
     """Build one FMU; return its path and whether it was (re)built (False: up to date)."""
-    from fmpy.build import build_platform_binary
-
     if fmi not in FMI_VERSIONS:
         raise BuildError(f"fmi: must be one of {FMI_VERSIONS} (got {fmi!r})")
     spec = load_interface(name)
     token = instantiation_token(name)
     target = fmu_file(name, fmi)
-    if not force and _current_token(target) == token:
+    if not force and current_token(target) == token:
         return target, False
     BUILD_DIR.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=f"fmu-{name}-") as tmp:
@@ -297,34 +305,47 @@ def build_fmu(name: str, fmi: int = 3, *, force: bool = False) -> tuple[Path, bo
             (sources / "buildDescription.xml").write_text(build_description_fmi3(spec))
         else:
             (root / "modelDescription.xml").write_text(model_description_fmi2(spec, token))
-        cmake_dir = Path(tmp) / "cmake"
-        cmake_dir.mkdir()
-        log_path = Path(tmp) / "build.log"
-        with open(log_path, "w") as log, _stdout_to(log):
-            try:
-                build_platform_binary(root, build_dir=cmake_dir, all_warnings=True,
-                                      cmake_options={"CMAKE_C_STANDARD_LIBRARIES:STRING": "-lm"})
-                failed = None
-            except (subprocess.CalledProcessError, OSError) as exc:
-                failed = exc
-        if failed is not None:
-            raise BuildError(f"building {target.name} failed ({failed}); compiler output:\n"
-                             f"{log_path.read_text()}")
-        partial = target.with_suffix(".fmu.part")
-        with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
-            for path in sorted(root.rglob("*")):
-                if path.is_file():
-                    archive.write(path, path.relative_to(root).as_posix())
-        os.replace(partial, target)
+        compile_fmu(root, target, Path(tmp))
     return target, True
 
 
-def build_all(names=MODELS, *, force: bool = False, progress=None) -> list[tuple[Path, bool]]:
-    """Build FMI 3.0 and FMI 2.0 FMUs of ``names``; ``progress(message)`` reports each."""
+def compile_fmu(root: Path, target: Path, tmp: Path) -> None:
+    """Compile the source FMU in ``root`` for this platform and zip it to ``target``."""
+    from fmpy.build import build_platform_binary
+
+    cmake_dir = tmp / "cmake"
+    cmake_dir.mkdir()
+    log_path = tmp / "build.log"
+    with open(log_path, "w") as log, _stdout_to(log):
+        try:
+            build_platform_binary(root, build_dir=cmake_dir, all_warnings=True,
+                                  cmake_options={"CMAKE_C_STANDARD_LIBRARIES:STRING": "-lm"})
+            failed = None
+        except (subprocess.CalledProcessError, OSError) as exc:
+            failed = exc
+    if failed is not None:
+        raise BuildError(f"building {target.name} failed ({failed}); compiler output:\n"
+                         f"{log_path.read_text()}")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    partial = target.with_suffix(".fmu.part")
+    with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
+        for path in sorted(root.rglob("*")):
+            if path.is_file():
+                archive.write(path, path.relative_to(root).as_posix())
+    os.replace(partial, target)
+
+
+def build_all(names=MODELS, *, force: bool = False, progress=None,
+              typed=TYPED_MODELS) -> list[tuple[Path, bool]]:
+    """Build FMI 3.0 and FMI 2.0 FMUs of ``names`` and of the test models ``typed``
+    (fmus/typed.py); ``progress(message)`` reports each."""
+    from fmus.typed import build_typed_fmu
+
     results = []
-    for name in names:
+    jobs = [(build_fmu, name) for name in names] + [(build_typed_fmu, name) for name in typed]
+    for build, name in jobs:
         for fmi in FMI_VERSIONS:
-            path, built = build_fmu(name, fmi, force=force)
+            path, built = build(name, fmi, force=force)
             if progress:
                 progress(f"{'built' if built else 'up to date'}: {path}")
             results.append((path, built))

@@ -1,5 +1,5 @@
 """Plain-Python reference implementations of the paper's crusher and mill
-equations (section "Simulator", errata as resolved in docs/architecture.md), written independently
+equations (section "Simulator", errata in fmus/README.md), written independently
 of the C model sources, for the FMU tests."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``minetwin fmus``: build the crusher and mill FMUs and validate FMUs."""
+"""``minetwin fmus``: build the crusher, mill and test FMUs; validate and describe FMUs."""
 
 from __future__ import annotations
 
@@ -7,14 +7,16 @@ import sys
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
-        "fmus", help="build and validate the crusher and mill FMUs",
-        description="Build the C source FMUs in fmus/ (FMI 3.0 and FMI 2.0 Co-Simulation, "
-                    "compiled with fmpy's build tooling) and validate FMUs.")
+        "fmus", help="build, validate and describe FMUs",
+        description="Build the C source FMUs in fmus/ and the test FMUs in tests/fmus/ "
+                    "(FMI 3.0 and FMI 2.0 Co-Simulation, compiled with fmpy's build "
+                    "tooling), validate FMUs and list an FMU's variables.")
     actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     build = actions.add_parser(
         "build", help="build fmus/build/<name>.fmu and <name>-fmi2.fmu (skips up-to-date ones)",
         description="Generate modelDescription.xml and compile every model in fmus/ into "
-                    "fmus/build/<name>.fmu (FMI 3.0) and fmus/build/<name>-fmi2.fmu (FMI 2.0). "
+                    "fmus/build/<name>.fmu (FMI 3.0) and fmus/build/<name>-fmi2.fmu (FMI 2.0), "
+                    "and the test models in tests/fmus/ into fmus/build/test/. "
                     "An FMU whose sources did not change is skipped.")
     build.add_argument("--force", action="store_true", help="rebuild even if up to date")
     build.add_argument("--model", action="append", metavar="NAME",
@@ -32,19 +34,31 @@ def register(subparsers) -> None:
                           help="interface to check (auto: mill if the file name starts with "
                                "'mill', else crusher)")
     validate.set_defaults(handler=run_validate)
+    info = actions.add_parser(
+        "info", help="list an FMU's variables (causality, type, unit, start, description)",
+        description="Show an FMU's model attributes (FMI version, generation tool and date, "
+                    "interfaces, platforms with a binary) and every variable with its "
+                    "causality, type, shape, unit, start value and description; an "
+                    "Enumeration's items. Reads the archive only (nothing is instantiated).")
+    info.add_argument("fmu", help="FMU file")
+    info.add_argument("--json", action="store_true", help="print one JSON object instead")
+    info.set_defaults(handler=run_info)
 
 
 def run_build(args) -> int:
-    from fmus.build import MODELS, BuildError, build_all
+    from fmus.build import MODELS, TYPED_MODELS, BuildError, build_all
 
-    names = args.model or list(MODELS)
-    unknown = [n for n in names if n not in MODELS]
+    names = args.model or list(MODELS + TYPED_MODELS)
+    known = list(MODELS + TYPED_MODELS)
+    unknown = [n for n in names if n not in known]
     if unknown:
-        print(f"minetwin fmus build: error: --model: must be one of {list(MODELS)} "
+        print(f"minetwin fmus build: error: --model: must be one of {known} "
               f"(got {unknown})", file=sys.stderr)
         return 2
     try:
-        build_all(names, force=args.force, progress=lambda m: print(m, file=sys.stderr))
+        build_all([n for n in names if n in MODELS], force=args.force,
+                  typed=[n for n in names if n in TYPED_MODELS],
+                  progress=lambda m: print(m, file=sys.stderr))
     except BuildError as exc:
         print(f"minetwin fmus build: error: {exc}", file=sys.stderr)
         return 1
@@ -57,7 +71,8 @@ def run_validate(args) -> int:
     from fmpy.validation import validate_fmu
 
     from cosim.errors import ValidationError
-    from cosim.fmu import BUILD_DIR, CRUSHER_INTERFACE, MILL_INTERFACE, FmuCallError, FmuComponent
+    from cosim.fmu import (BUILD_DIR, CRUSHER_INTERFACE, MILL_INTERFACE, FmuCallError,
+                           FmuComponent, check_binary, read_description)
 
     paths = [Path(p) for p in args.fmu] or sorted(BUILD_DIR.glob("*.fmu"))
     if not paths:
@@ -67,6 +82,18 @@ def run_validate(args) -> int:
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
         print(f"minetwin fmus validate: error: fmu: no such file {missing}", file=sys.stderr)
+        return 2
+    unreadable = []
+    for path in paths:  # broken archives and missing binaries are bad input, one line each
+        try:
+            description = read_description(path)
+            if description.coSimulation is not None:
+                check_binary(path, description, 3 if description.fmiVersion == "3.0" else 2)
+        except ValidationError as exc:
+            unreadable.append(str(exc))
+    if unreadable:
+        for message in unreadable:
+            print(f"minetwin fmus validate: error: {message}", file=sys.stderr)
         return 2
     failed = 0
     for path in paths:
@@ -88,3 +115,37 @@ def run_validate(args) -> int:
         else:
             print(f"ok   {path} ({choice} interface)")
     return 1 if failed else 0
+
+
+def run_info(args) -> int:
+    import json
+
+    from cosim.fmu import describe_fmu
+
+    info = describe_fmu(args.fmu)
+    if args.json:
+        print(json.dumps(info, indent=1, allow_nan=False))
+        return 0
+    lines = [f"{info['file']}", f"  FMI version      {info['fmi_version']}",
+             f"  model name       {info['model_name']}",
+             f"  description      {info['description']}",
+             f"  generation tool  {info['generation_tool'] or '-'}",
+             f"  generated        {info['generation_date'] or '-'}",
+             f"  interfaces       {', '.join(info['interfaces']) or '-'}"
+             + ("  (event mode)" if info["event_mode"] else ""),
+             f"  platforms        {', '.join(info['platforms']) or '-'}  "
+             f"(this machine: {info['this_platform']})", "",
+             f"  {'name':<28} {'causality':<11} {'type':<12} {'unit':<8} {'start':<18} "
+             "description"]
+    for v in info["variables"]:
+        shape = "x".join(str(n) for n in v["shape"]) if v["shape"] else ""
+        kind = v["type"] + (f"[{shape}]" if shape else "") if v["shape"] is not None \
+            else v["type"] + "[incomplete]"
+        start = v["start"] if len(v["start"]) <= 18 else v["start"][:15] + "..."
+        text = v["description"]
+        if v["items"]:
+            text += " (" + ", ".join(f"{k} = {n}" for k, n in v["items"].items()) + ")"
+        lines.append(f"  {v['name']:<28} {v['causality']:<11} {kind:<12} {v['unit']:<8} "
+                     f"{start:<18} {text}")
+    print("\n".join(lines))
+    return 0

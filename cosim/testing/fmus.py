@@ -1,7 +1,7 @@
 """Load an FMU for a test and validate it against the interface an asset needs.
 
 Wraps ``cosim.fmu.FmuComponent`` (which checks variables, causalities and
-array sizes at load; fmus/README.md) with interface names a test can
+array sizes at load, fmus/README.md) with interface names a test can
 write: ``"crusher"`` or ``"mill"`` (fmus/README.md), or a tuple of
 ``cosim.fmu.VariableSpec`` for an asset of the user's own. A built FMU may
 be named by its model name (``"cone_crusher"`` -> fmus/build/cone_crusher.fmu).

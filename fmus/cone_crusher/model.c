@@ -25,7 +25,7 @@
 
 #define N_CLASSES 16
 
-/* d_k = 1e-5 m * r^k, r = 10^(1/3) (DESIGN.md section 2), tabulated on first use */
+/* d_k = 1e-5 m * r^k, r = 10^(1/3) (cosim/sizes.py), tabulated on first use */
 static double class_diameter(int k) {
     static double diameters[N_CLASSES];
     static int tabulated = 0;

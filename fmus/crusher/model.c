@@ -8,7 +8,7 @@
  * fractions (d_k >= d_cr) break into a uniform distribution over the n_d
  * undersize classes, so M[i][j] = 1/n_d for j oversize and i undersize, and
  * M[j][j] = 1 for j undersize. Columns sum to 1 (mass-conserving).
- * Class diameters d_k = 1e-5 m * 10^(k/3) (DESIGN.md section 2). */
+ * Class diameters d_k = 1e-5 m * 10^(k/3) (cosim/sizes.py). */
 #include <math.h>
 #include <stdio.h>
 
@@ -16,7 +16,7 @@
 
 #define N_CLASSES 16
 
-/* d_k = 1e-5 m * r^k, r = 10^(1/3) (DESIGN.md section 2), tabulated on first use */
+/* d_k = 1e-5 m * r^k, r = 10^(1/3) (cosim/sizes.py), tabulated on first use */
 static double class_diameter(int k) {
     static double diameters[N_CLASSES];
     static int tabulated = 0;

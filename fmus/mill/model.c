@@ -1,5 +1,5 @@
 /* Grinding mill model: paper section "Simulator" (idealised mill after
- * Araker 2020), with the errata of DESIGN.md section 5a.
+ * Araker 2020), with the errata listed in fmus/README.md.
  *
  * Charge: c^k = charge_mass[k] [kg], m_gr = sum_k c^k, m_tot = m0 + m_gr,
  * m_gr-a = sum_{d_k >= d_gr-a} c^k (relative tolerance 1e-9, so d_gr-a = 1 mm
@@ -30,7 +30,7 @@
 
 #define N_CLASSES 16
 
-/* d_k = 1e-5 m * r^k, r = 10^(1/3) (DESIGN.md section 2), tabulated on first use */
+/* d_k = 1e-5 m * r^k, r = 10^(1/3) (cosim/sizes.py), tabulated on first use */
 static double class_diameter(int k) {
     static double diameters[N_CLASSES];
     static int tabulated = 0;
