@@ -75,6 +75,8 @@ class Component:
     """Inputs this component accepts; ``connect`` refuses others (empty: any)."""
     stop_request: "StopRequest | None" = None
     """Set in ``step`` to end the simulation (the master reads it after each step)."""
+    output_types: dict[str, str] = {}
+    """FMI type name per output of a typed component (an FMU); empty: untyped floats."""
 
     def __init__(self):
         self.inputs: dict[str, object] = {}
@@ -93,6 +95,10 @@ class Component:
 
     def finish(self) -> None:
         pass
+
+    def check_input_type(self, name: str, source_type: str, source: str) -> None:
+        """Refuse a connection from an output of FMI type ``source_type`` that input
+        ``name`` cannot take (a ``ValidationError``); untyped components take any."""
 
     def record_dtypes(self) -> dict:
         """numpy dtype per output signal for recording (missing: float64)."""
@@ -155,10 +161,9 @@ class Master:
         if target.input_names and input not in target.input_names:
             raise ValidationError("input", f"one of {list(target.input_names)} of {target.name}",
                                   f"got {input!r}")
-        source_type = getattr(source, "output_types", {}).get(output)
-        check = getattr(target, "check_input_type", None)
-        if source_type is not None and check is not None:  # typed (FMU) signals: refuse now
-            check(input, source_type, f"{source.name}.{output}")
+        source_type = source.output_types.get(output)
+        if source_type is not None:  # typed (FMU) signals: a mismatch is refused now
+            target.check_input_type(input, source_type, f"{source.name}.{output}")
         connection = Connection(source, output, target, input)
         self.connections.append(connection)
         self._by_target.setdefault(id(target), []).append(connection)

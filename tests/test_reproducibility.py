@@ -28,9 +28,9 @@ MINETWIN = str(Path(sys.executable).with_name("minetwin"))
 
 DIGESTS = {
     "fifo": ("616dfd1b055b4c70a0c6e5f40102e8524f1704722a3179567b147321495194e8",
-             "32488d359f0fe390c041bbbb4bccbf3cc5661fdb755820fc8dd8eeeeae36a90c"),
+             "2ae4c2af30d43c9abf38179ab8ac32b9b80686b9025af51246665a05961db3d5"),
     "mixing": ("9d976cacf0fee3b718a4e2ddc84b00f8e900b2cf50432aeb0352d3f270c475f9",
-               "d8ecb9b5b9c2fc28dfe8c901a1ad609727a560aeab50ce1cdae34d76bdc911db"),
+               "eaea78a1c828aafd2105251b7e3328959078646527c6681dbfb1fdc91839ba64"),
 }
 """(events, time series) SHA-256 digests per storage model."""
 
