@@ -153,14 +153,17 @@ class ParticleStore:
         ids = np.asarray(ids, dtype=np.uint64).ravel()
         if ids.size == 0:
             return np.empty(0, dtype=np.int64)
+        # called many times a step: one gather and one reduction when every id is known
+        if ids.max() < self._slot_of_id.size:
+            slots = self._slot_of_id[ids]
+            if slots.min() >= 0:
+                return slots
         inside = ids < self._slot_of_id.size
         slots = np.full(ids.size, -1, dtype=np.int64)
         slots[inside] = self._slot_of_id[ids[inside].astype(np.int64)]
-        if (slots < 0).any():
-            bad = ids[slots < 0]
-            raise ValidationError("id", "the id of a particle in the store",
-                                  f"unknown id {int(bad[0])}; {bad.size} unknown")
-        return slots
+        bad = ids[slots < 0]
+        raise ValidationError("id", "the id of a particle in the store",
+                              f"unknown id {int(bad[0])}; {bad.size} unknown")
 
     def contains(self, ids) -> np.ndarray:
         """Boolean array: which of ``ids`` are in the store."""
