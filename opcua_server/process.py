@@ -34,6 +34,7 @@ Parameters come from the configuration (``opcua_server.config``); units SI.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,6 +44,20 @@ from cosim.errors import ValidationError
 MASS_TOLERANCE = 1e-9
 """Relative slack [-] when checking a tracking id's outflow against its inflow
 (the stockpile splits a bin into particles; float sums differ in the last bits)."""
+
+
+MAX_REPORT_ROWS = 10_000
+"""Most tracking ids [-] in one outflow report; the stockpile reports one cycle's
+outflow (a few particles per tracking id), far below this."""
+
+
+def report_digest(tracking_ids: np.ndarray, masses: np.ndarray, grades: np.ndarray) -> str:
+    """SHA-256 of an outflow report's contents (tells a resend from a conflict)."""
+    digest = hashlib.sha256()
+    for arr, dtype in ((tracking_ids, "<u8"), (masses, "<f8"), (grades, "<f8")):
+        digest.update(np.ascontiguousarray(arr, dtype=dtype).tobytes())
+        digest.update(b"|")
+    return digest.hexdigest()
 
 
 class ExchangeRefused(Exception):
@@ -141,6 +156,7 @@ class PlantProcess:
         self.left_mass: dict[int, float] = {}
         self._grades: dict[int, float] = {}
         self.duplicate_reports = 0
+        self.report_digests: dict[int, str] = {}
         self.loading_contents: dict[int, float] = {}
         self.cv301_contents: list[dict[int, float]] = [dict() for _ in range(self.cv301.n_bins)]
         self.bins_out = 0
@@ -251,23 +267,34 @@ class PlantProcess:
     def report_outflow(self, sequence: int, tracking_ids, masses, grades) -> str:
         """Apply one outflow report once; return "applied" or "already applied".
 
-        Refused (``ExchangeRefused``, nothing changed): a gap in the
-        sequence, arrays of different lengths, a repeated tracking id,
+        Refused (``ExchangeRefused``, nothing changed): sequence 0, a gap
+        in the sequence, an applied number with other contents (a replay
+        that is a conflict), more than ``MAX_REPORT_ROWS`` tracking ids, arrays of different lengths, a repeated tracking id,
         masses not finite and > 0, grades outside [0, 1], a tracking id that
         never entered the stockpile, or more mass of a tracking id than
         entered.
         """
         sequence = int(sequence)
+        tids = np.asarray(tracking_ids, dtype=np.uint64).ravel()
+        mass = np.asarray(masses, dtype=np.float64).ravel()
+        grade = np.asarray(grades, dtype=np.float64).ravel()
+        if tids.size > MAX_REPORT_ROWS:
+            raise ExchangeRefused("BadTooManyOperations", "tracking_ids",
+                                  f"at most {MAX_REPORT_ROWS} per report", f"got {tids.size}")
+        if sequence < 1:
+            raise ExchangeRefused("BadSequenceNumberInvalid", "sequence", ">= 1", "got 0")
+        digest = report_digest(tids, mass, grade)
         if sequence <= self.outbound_sequence:
+            if self.report_digests.get(sequence) != digest:
+                raise ExchangeRefused("BadSequenceNumberInvalid", "sequence",
+                                      "a new number for a new report",
+                                      f"report {sequence} was applied with other contents")
             self.duplicate_reports += 1
             return "already applied"
         if sequence != self.outbound_sequence + 1:
             raise ExchangeRefused("BadSequenceNumberInvalid", "sequence",
                                   f"{self.outbound_sequence + 1} (the next outflow number)",
                                   f"got {sequence}")
-        tids = np.asarray(tracking_ids, dtype=np.uint64).ravel()
-        mass = np.asarray(masses, dtype=np.float64).ravel()
-        grade = np.asarray(grades, dtype=np.float64).ravel()
         for name, arr in (("masses", mass), ("grades", grade)):
             if arr.size != tids.size:
                 raise ExchangeRefused("BadInvalidArgument", name,
@@ -280,12 +307,12 @@ class PlantProcess:
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
             raise ExchangeRefused("BadOutOfRange", "masses", "finite and > 0 kg",
-                                  f"got {mass[k]!r} at index {k}")
+                                  f"got {float(mass[k])} at index {k}")
         bad = ~np.isfinite(grade) | (grade < 0) | (grade > 1)
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
             raise ExchangeRefused("BadOutOfRange", "grades", "in [0, 1]",
-                                  f"got {grade[k]!r} at index {k}")
+                                  f"got {float(grade[k])} at index {k}")
         for k, tid in enumerate(tids.tolist()):
             entered = self.entered_mass.get(tid)
             if entered is None:
@@ -299,6 +326,7 @@ class PlantProcess:
                                       f"{total:.9g} kg would have left in total")
         # accepted: apply
         self.outbound_sequence = sequence
+        self.report_digests[sequence] = digest
         for tid, m, g in zip(tids.tolist(), mass.tolist(), grade.tolist()):
             self.left_mass[tid] = self.left_mass.get(tid, 0.0) + m
             self.loading_contents[tid] = self.loading_contents.get(tid, 0.0) + m

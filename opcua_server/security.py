@@ -117,12 +117,19 @@ class PlantUser(User):
 
 
 class PlantUserManager:
-    """Username/password check against hashed passwords; no anonymous, no admin."""
+    """Username/password check against hashed passwords; no anonymous, no admin.
+
+    ``check`` does the scrypt work (the session processor runs it in an
+    executor, off the event loop) and leaves its verdict in ``verdicts``;
+    asyncua's ``get_user``, called inside the event loop, takes that verdict
+    and hashes only when there is none (a password never checked before).
+    """
 
     def __init__(self, users: dict[str, dict]):
         self.users = users
+        self.verdicts: dict[tuple, PlantUser | None] = {}
 
-    def get_user(self, iserver, username=None, password=None, certificate=None):
+    def check(self, username, password) -> PlantUser | None:
         entry = self.users.get(username or "")
         if entry is None or password is None:
             return None
@@ -131,6 +138,12 @@ class PlantUserManager:
         if not verify_password(password, entry["password_hash"]):
             return None
         return PlantUser(role=UserRole.User, name=username, plant_role=entry["role"])
+
+    def get_user(self, iserver, username=None, password=None, certificate=None):
+        key = (username, password)
+        if key in self.verdicts:
+            return self.verdicts.pop(key)
+        return self.check(username, password)
 
 
 _WRITE = ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary)

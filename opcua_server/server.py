@@ -43,7 +43,9 @@ from asyncua.crypto.truststore import TrustStore
 from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 from asyncua.server.address_space import AttributeService
 
-from opcua_server.process import ExchangeRefused, PlantProcess
+from opcua_server import sessions
+from opcua_server.process import MAX_REPORT_ROWS, ExchangeRefused, PlantProcess
+from opcua_server.sessions import SessionGuard
 from opcua_server.security import (APPLICATION_URI_SERVER, PlantPermissions, PlantUserManager,
                                    ensure_certificate, ensure_users, load_users, pki_paths)
 
@@ -98,11 +100,14 @@ class PlantAttributeService(AttributeService):
                                   f"{item.NodeId.to_string()}: not writable by role {role!r}")
                 results.append(ua.StatusCode(ua.StatusCodes.BadUserAccessDenied))
                 continue
-            value = item.Value.Value.Value if item.Value and item.Value.Value else None
+            variant = item.Value.Value if item.Value else None
+            value = variant.Value if variant is not None else None
             try:
-                if isinstance(value, (list, tuple, np.ndarray)) or value is None:
-                    raise ExchangeRefused("BadTypeMismatch", item.NodeId.Identifier, "a scalar number",
-                                          f"got {type(value).__name__}")
+                if variant is None or variant.VariantType != target.variant or \
+                        isinstance(value, (list, tuple, np.ndarray)) or value is None:
+                    got = variant.VariantType.name if variant is not None else "no value"
+                    raise ExchangeRefused("BadTypeMismatch", item.NodeId.Identifier,
+                                          f"a scalar {target.variant.name}", f"got {got}")
                 target.apply(value)
             except ExchangeRefused as exc:
                 await self.plant.refuse(exc.status, exc.message)
@@ -246,6 +251,10 @@ class PlantServer:
             print(f"{banner}\nWARNING: --insecure: the None security endpoint is ON; messages are "
                   f"neither signed nor encrypted.\nLocal development only.\n{banner}", file=sys.stderr)
         server.set_security_policy(policies, permission_ruleset=PlantPermissions(self._methods_by_role))
+        sessions.install()
+        server.iserver.plant_guard = SessionGuard(
+            writable_roles={node: w.roles for node, w in self.writable.items()},
+            methods_by_role=self._methods_by_role, allow_none_sessions=self.insecure)
         if not self.insecure:
             server._policies.insert(0, RefuseNoneChannel())
         await server.start()
@@ -274,7 +283,8 @@ class PlantServer:
         await var(plant, "Plant.SimulationTime", 0.0, D, description="simulation time [s]")
         await var(plant, "Plant.Lockstep", self.lockstep, B)
         self._advance_node = await plant.add_method(
-            nid("Plant.AdvanceTime"), ua.QualifiedName("AdvanceTime", idx), self._call_advance,
+            nid("Plant.AdvanceTime"), ua.QualifiedName("AdvanceTime", idx),
+            self._method((("seconds", D, False),), self._advance_time),
             [_arg("seconds", ua.ObjectIds.Double, "simulation seconds to advance")],
             [_arg("simulation_time", ua.ObjectIds.Double, "new simulation time [s]")])
 
@@ -313,14 +323,15 @@ class PlantServer:
             await var(inbound, f"Plant.SP201.Inbound.{name}", [], vtype)
         self._ack_node = await inbound.add_method(
             nid("Plant.SP201.Inbound.Acknowledge"), ua.QualifiedName("Acknowledge", idx),
-            self._call_acknowledge,
+            self._method((("sequence", U, False),), self._acknowledge),
             [_arg("sequence", ua.ObjectIds.UInt64, "highest sequence number applied")],
             [_arg("message", ua.ObjectIds.String, "result")])
         outbound = await sp.add_object(nid("Plant.SP201.Outbound"), ua.QualifiedName("Outbound", idx))
         await var(outbound, "Plant.SP201.Outbound.LastSequence", 0, U)
         self._report_node = await outbound.add_method(
             nid("Plant.SP201.Outbound.ReportOutflow"), ua.QualifiedName("ReportOutflow", idx),
-            self._call_report,
+            self._method((("sequence", U, False), ("tracking_ids", U, True),
+                          ("masses", D, True), ("grades", D, True)), self._report),
             [_arg("sequence", ua.ObjectIds.UInt64, "outflow report number, 1, 2, ..."),
              _arg("tracking_ids", ua.ObjectIds.UInt64, "tracking ids", array=True),
              _arg("masses", ua.ObjectIds.Double, "mass [kg] per tracking id", array=True),
@@ -468,62 +479,77 @@ class PlantServer:
         return out
 
     # --------------------------------------------------------------- methods
-    async def _refused_call(self, exc: ExchangeRefused) -> ua.CallMethodResult:
+    def _method(self, spec: tuple, body):
+        """A method callback: argument count and types checked against ``spec``
+        (``(name, VariantType, is_array)`` per input argument) before ``body``
+        gets the plain values; a refusal names the argument and marks it in
+        ``InputArgumentResults``."""
+        names = [name for name, _, _ in spec]
+
+        async def call(parent, *args):
+            try:
+                if len(args) != len(spec):
+                    status = "BadArgumentsMissing" if len(args) < len(spec) else "BadTooManyArguments"
+                    raise ExchangeRefused(status, "arguments", f"{len(spec)} ({', '.join(names)})",
+                                          f"got {len(args)}")
+                results = [ua.StatusCode()] * len(args)
+                values, bad = [], []
+                for k, ((name, vtype, array), variant) in enumerate(zip(spec, args)):
+                    value = variant.Value if isinstance(variant, ua.Variant) else None
+                    if array and value is None and getattr(variant, "VariantType", None) == vtype:
+                        value = []  # an empty array arrives as a null value
+                    if not isinstance(variant, ua.Variant) or variant.VariantType != vtype or \
+                            isinstance(value, list) != array:
+                        got = (variant.VariantType.name + ("[]" if isinstance(value, list) else "")
+                               if isinstance(variant, ua.Variant) else type(variant).__name__)
+                        bad.append(f"{name}: must be {vtype.name}{'[]' if array else ''} (got {got})")
+                        results[k] = ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
+                    values.append(value)
+                if bad:
+                    return await self._refused_call(
+                        ExchangeRefused("BadTypeMismatch", "arguments", "; ".join(bad)), results)
+                message, vtype = await body(*values)
+            except ExchangeRefused as exc:
+                results = [ua.StatusCode()] * len(args)
+                if exc.field in names and len(args) == len(spec):
+                    results[names.index(exc.field)] = ua.StatusCode(getattr(ua.StatusCodes,
+                                                                            exc.status))
+                return await self._refused_call(exc, results if len(args) == len(spec) else [])
+            return [ua.Variant(message, vtype)]
+
+        return call
+
+    async def _refused_call(self, exc: ExchangeRefused, input_results=()) -> ua.CallMethodResult:
         await self.refuse(exc.status, exc.message)
         result = ua.CallMethodResult()
         result.StatusCode = ua.StatusCode(getattr(ua.StatusCodes, exc.status))
+        result.InputArgumentResults = list(input_results)
         result.OutputArguments = [ua.Variant(exc.message, ua.VariantType.String)]
         return result
 
-    async def _call_acknowledge(self, parent, sequence):
-        try:
-            seq = _as_int("sequence", sequence)
-            async with self._lock:
-                acked = self.process.acknowledge(seq)
-                await self._publish_inbound()
-        except ExchangeRefused as exc:
-            return await self._refused_call(exc)
-        return [ua.Variant(f"acknowledged up to {acked}", ua.VariantType.String)]
+    async def _acknowledge(self, sequence: int):
+        async with self._lock:
+            acked = self.process.acknowledge(sequence)
+            await self._publish_inbound()
+        return f"acknowledged up to {acked}", ua.VariantType.String
 
-    async def _call_report(self, parent, sequence, tracking_ids, masses, grades):
-        try:
-            seq = _as_int("sequence", sequence)
-            arrays = []
-            for name, var in (("tracking_ids", tracking_ids), ("masses", masses), ("grades", grades)):
-                value = var.Value if isinstance(var, ua.Variant) else var
-                if value is None:
-                    value = []
-                if not isinstance(value, (list, tuple)):
-                    raise ExchangeRefused("BadInvalidArgument", name, "an array", f"got {value!r}")
-                arrays.append(value)
-            try:
-                tids = np.array(arrays[0], dtype=np.uint64)
-            except (OverflowError, ValueError, TypeError):
-                raise ExchangeRefused("BadInvalidArgument", "tracking_ids",
-                                      "unsigned 64-bit integers") from None
-            async with self._lock:
-                message = self.process.report_outflow(seq, tids, np.array(arrays[1], dtype=float),
-                                                      np.array(arrays[2], dtype=float))
-                await self.publish()
-        except ExchangeRefused as exc:
-            return await self._refused_call(exc)
-        except (TypeError, ValueError) as exc:
-            return await self._refused_call(ExchangeRefused("BadInvalidArgument", "arguments",
-                                                      "(UInt64, UInt64[], Double[], Double[])",
-                                                      str(exc)))
-        return [ua.Variant(message, ua.VariantType.String)]
+    async def _report(self, sequence: int, tracking_ids: list, masses: list, grades: list):
+        if len(tracking_ids) > MAX_REPORT_ROWS:  # before any work on the arrays
+            raise ExchangeRefused("BadTooManyOperations", "tracking_ids",
+                                  f"at most {MAX_REPORT_ROWS} per report", f"got {len(tracking_ids)}")
+        async with self._lock:
+            message = self.process.report_outflow(sequence, np.array(tracking_ids, dtype=np.uint64),
+                                                  np.array(masses, dtype=float),
+                                                  np.array(grades, dtype=float))
+            await self.publish()
+        return message, ua.VariantType.String
 
-    async def _call_advance(self, parent, seconds):
-        try:
-            value = seconds.Value if isinstance(seconds, ua.Variant) else seconds
-            if not self.lockstep:
-                raise ExchangeRefused("BadInvalidState", "AdvanceTime",
-                                      "called only on a server started with --lockstep")
-            dt = _check("seconds", value, 0.0, 3600.0)
-            await self.advance(dt)
-        except ExchangeRefused as exc:
-            return await self._refused_call(exc)
-        return [ua.Variant(self.process.time, ua.VariantType.Double)]
+    async def _advance_time(self, seconds: float):
+        if not self.lockstep:
+            raise ExchangeRefused("BadInvalidState", "AdvanceTime",
+                                  "called only on a server started with --lockstep")
+        await self.advance(_check("seconds", seconds, 0.0, 3600.0))
+        return self.process.time, ua.VariantType.Double
 
 
 def _arg(name: str, datatype: int, description: str, array: bool = False) -> ua.Argument:
@@ -540,21 +566,12 @@ def _check(field_name: str, value, low: float, high: float) -> float:
     try:
         number = float(value)
     except (TypeError, ValueError):
-        raise ExchangeRefused("BadTypeMismatch", field_name, "a number", f"got {value!r}") from None
+        raise ExchangeRefused("BadTypeMismatch", field_name, "a number",
+                              f"got {type(value).__name__}") from None
     if not math.isfinite(number) or number < low or number > high:
         raise ExchangeRefused("BadOutOfRange", field_name, f"finite and in [{low:g}, {high:g}]",
-                              f"got {value!r}")
+                              f"got {number}")
     return number
-
-
-def _as_int(field_name: str, variant) -> int:
-    value = variant.Value if isinstance(variant, ua.Variant) else variant
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ExchangeRefused("BadInvalidArgument", field_name, "an unsigned integer",
-                              f"got {value!r}")
-    if value < 0:
-        raise ExchangeRefused("BadOutOfRange", field_name, ">= 0", f"got {value}")
-    return int(value)
 
 
 def _write_json(path: Path, data: dict) -> None:
