@@ -46,6 +46,10 @@ MASS_TOLERANCE = 1e-9
 (the stockpile splits a bin into particles; float sums differ in the last bits)."""
 
 
+SETPOINT_CHANGES_KEPT = 64
+"""How many of the latest setpoint changes the plant publishes (with the plant
+time each took effect), enough for a client many cycles behind."""
+
 MAX_REPORT_ROWS = 10_000
 """Most tracking ids [-] in one outflow report; the stockpile reports one cycle's
 outflow (a few particles per tracking id), far below this."""
@@ -141,6 +145,9 @@ class PlantProcess:
         self._scheduled_rate = float(sp["discharge_rate_kg_s"])
         self._discharge_start = float(sp.get("discharge_start_s", 0.0))
         self.discharge_rate_setpoint = self._scheduled_rate if self._discharge_start <= 0 else 0.0
+        # (plant time it took effect [s], setpoint [kg/s]): a client that lags
+        # behind the plant applies each setpoint from its own time, not late
+        self.setpoint_changes: list[tuple[float, float]] = [(0.0, self.discharge_rate_setpoint)]
         self.lots = config["feed"]["lots"]
         self._lot_ends = np.cumsum([float(lot["duration_s"]) for lot in self.lots])
         self.next_tracking_id = int(config["feed"]["first_tracking_id"])
@@ -203,6 +210,7 @@ class PlantProcess:
         self.time += dt
         if 0 < self._discharge_start <= self.time:
             self.discharge_rate_setpoint = self._scheduled_rate
+            self._record_setpoint(self._discharge_start)
             self._discharge_start = 0.0
         return new
 
@@ -354,6 +362,12 @@ class PlantProcess:
                                   f"in [0, {self.max_discharge_rate:g}] kg/s", f"got {rate!r}")
         self.discharge_rate_setpoint = rate
         self._discharge_start = 0.0  # the operator's setpoint stands
+        self._record_setpoint(self.time)
+
+    def _record_setpoint(self, effective_s: float) -> None:
+        changes = self.setpoint_changes
+        changes.append((float(effective_s), self.discharge_rate_setpoint))
+        del changes[:-SETPOINT_CHANGES_KEPT]
 
     def set_belt_speed(self, belt: str, speed: float) -> None:
         """Belt speed [m/s] of ``cv101`` or ``cv301`` in [0, max]."""

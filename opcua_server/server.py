@@ -120,6 +120,7 @@ class PlantAttributeService(AttributeService):
             stored = ua.DataValue(ua.Variant(self.plant.coerce(value, target.variant), target.variant))
             results.append(await self._aspace.write_attribute_value(
                 item.NodeId, ua.AttributeIds.Value, stored))
+            await self.plant.publish_setpoint_changes()  # with the setpoint, at once
         return results
 
 
@@ -195,13 +196,16 @@ class PlantServer:
     """
 
     def __init__(self, config: dict, *, speed: float = 1.0, insecure: bool = False,
-                 lockstep: bool = False):
+                 lockstep: bool = False, until_s: float | None = None):
         self.config = config
+        self.until_s = until_s
+        self.on_until = None  # called once when the clock reaches until_s
         self.speed = float(speed)
         self.insecure = insecure
         self.lockstep = lockstep
         self.process = PlantProcess(config)
         self._published_setpoint = self.process.discharge_rate_setpoint
+        self._published_change = self.process.setpoint_changes[-1]
         srv = config["server"]
         self.host, self.port = srv["host"], int(srv["port"])
         self.state_dir = Path(srv["state_dir"])
@@ -301,6 +305,10 @@ class PlantServer:
         self.sp201_node = sp
         await var(sp, "Plant.SP201.DischargeRateSetpoint", p.discharge_rate_setpoint, D,
                   Writable(("operator",), p.set_discharge_rate), "feeder setpoint [kg/s], 0..2000")
+        await var(sp, "Plant.SP201.SetpointChangeTimes", [0.0], D,
+                  description="plant time [s] at which each of the latest setpoints took effect")
+        await var(sp, "Plant.SP201.SetpointChangeValues", [p.discharge_rate_setpoint], D,
+                  description="the latest setpoints [kg/s], one per SetpointChangeTimes entry")
         await var(sp, "Plant.SP201.HeldMass", 0.0, D,
                   Writable(("surrogate",), lambda v: _check("HeldMass", v, 0.0, math.inf)),
                   "mass held, reported by the stockpile [kg]")
@@ -377,6 +385,7 @@ class PlantServer:
         if p.discharge_rate_setpoint != self._published_setpoint:  # the scheduled start
             await w("Plant.SP201.DischargeRateSetpoint", p.discharge_rate_setpoint, D)
             self._published_setpoint = p.discharge_rate_setpoint
+        await self.publish_setpoint_changes()
         b = p.cv101
         await w("Plant.CV101.BinTrackingIds", b.tracking_id.tolist(), U)
         await w("Plant.CV101.BinMasses", b.mass.tolist(), D)
@@ -401,6 +410,13 @@ class PlantServer:
         await w("Plant.CV301.Mass", total, D)
         await w("Plant.CV301.Grade", float(c.mass @ c.grade / total) if total > 0 else 0.0, D)
         await w("Plant.CV301.DeliveredMass", p.delivered_mass_kg, D)
+
+    async def publish_setpoint_changes(self) -> None:
+        changes, D = self.process.setpoint_changes, ua.VariantType.Double
+        if changes[-1] != self._published_change:
+            await self._write("Plant.SP201.SetpointChangeTimes", [t for t, _ in changes], D)
+            await self._write("Plant.SP201.SetpointChangeValues", [v for _, v in changes], D)
+            self._published_change = changes[-1]
 
     async def _publish_inbound(self) -> None:
         p, D, U, I = (self.process, ua.VariantType.Double, ua.VariantType.UInt64,
@@ -432,9 +448,16 @@ class PlantServer:
 
     # --------------------------------------------------------------- advance
     async def advance(self, dt: float) -> None:
+        if self.until_s is not None:  # the clock stops at until_s exactly
+            dt = min(dt, max(self.until_s - self.process.time, 0.0))
         async with self._lock:
             records = self.process.advance(dt)
             await self.publish()
+        if self.until_s is not None and not self.paused and \
+                self.process.time >= self.until_s - 1e-9:
+            self.pause()
+            if self.on_until is not None:
+                self.on_until()
         ev = self.event_generator
         for r in records:
             ev.event.Sequence = ua.Variant(r.sequence, ua.VariantType.UInt64)
@@ -582,9 +605,13 @@ def _write_json(path: Path, data: dict) -> None:
 
 async def serve(config: dict, *, speed: float = 1.0, insecure: bool = False,
                 lockstep: bool = False, ledger_path: Path | None = None,
-                ready_file: Path | None = None) -> int:
-    """Run the server until SIGINT/SIGTERM; write the ledger JSON at the end."""
-    plant = PlantServer(config, speed=speed, insecure=insecure, lockstep=lockstep)
+                ready_file: Path | None = None, until_s: float | None = None) -> int:
+    """Run the server until SIGINT/SIGTERM; write the ledger JSON at the end.
+
+    ``until_s``: the clock freezes at that simulation time and the ledger is
+    written, as on SIGUSR1."""
+    plant = PlantServer(config, speed=speed, insecure=insecure, lockstep=lockstep,
+                        until_s=until_s)
     await plant.start()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -598,6 +625,7 @@ async def serve(config: dict, *, speed: float = 1.0, insecure: bool = False,
               flush=True)
 
     loop.add_signal_handler(signal.SIGUSR1, pause_and_write_ledger)
+    plant.on_until = pause_and_write_ledger
     mode = "lockstep" if lockstep else f"speed x{speed:g}"
     print(f"serve-800xa: listening on {plant.endpoint} ({mode})", file=sys.stderr, flush=True)
     if ready_file:

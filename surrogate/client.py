@@ -32,6 +32,7 @@ and resynchronises from the pending list.
 from __future__ import annotations
 
 import asyncio
+import bisect
 import json
 import logging
 import math
@@ -50,6 +51,9 @@ from surrogate.stockpile import StockpileAsset
 log = logging.getLogger("surrogate.client")
 
 CHECKPOINT_VERSION = 1
+LAG_WARNING_S = 2.0
+"""Lag [s of plant time] behind the server above which the client says on
+stderr that it does not keep real time (at most every 10 s of wall time)."""
 
 
 @dataclass
@@ -77,6 +81,8 @@ class ClientOptions:
     node_map: Path | None = None
     rest_port: int | None = None
     rest_port_file: Path | None = None
+    cycle_budget_s: float = 1.0
+    """Wall time [s] one exchange cycle may spend stepping (not in lockstep)."""
     reconnect_s: float = 1.0
     timeout_s: float = 4.0
 
@@ -112,6 +118,10 @@ class StockpileClient:
         self.reconnects = 0
         self._stop = asyncio.Event()
         self.nodes: dict = {}
+        # [(plant time [s], setpoint [kg/s])] the plant published, oldest first;
+        # empty: the setpoint read in the cycle applies to the whole cycle
+        self.setpoint_changes: list[tuple[float, float]] = []
+        self._lag_warned_at = -math.inf
 
     @property
     def asset(self) -> StockpileAsset:
@@ -154,22 +164,40 @@ class StockpileClient:
                 self.inbox.setdefault(seq, r)
             self.known_sequence = max(self.known_sequence, seq)
 
-    def advance_to(self, target_time: float) -> dict | None:
+    def advance_to(self, target_time: float, budget_s: float | None = None) -> dict | None:
         """Step the asset to ``target_time`` applying inbound records in order;
-        return this cycle's outflow report (or None)."""
+        return this cycle's outflow report (or None).
+
+        ``budget_s`` [wall s]: stop stepping (short of ``target_time``) once
+        this much wall time is spent, so a client far behind catches up over
+        several cycles and keeps its session alive (the next cycle goes on).
+        """
         asset = self.asset
         started = time.perf_counter()
+        deadline = started + budget_s if budget_s is not None else math.inf
         outflow: dict[int, list[float]] = {}
+        changes = self.setpoint_changes
 
-        def step_to(t_end: float) -> None:
+        def step_to(t_end: float) -> bool:
+            """Step to ``t_end``; False if the wall-time budget ran out first."""
             while asset.time < t_end - 1e-12:
-                out = asset.step(min(self.o.dt_s, t_end - asset.time))
+                if time.perf_counter() > deadline:
+                    return False
+                dt = min(self.o.dt_s, t_end - asset.time)
+                if changes:  # the setpoint in force at the asset's own plant time
+                    k = max(bisect.bisect_right(changes, (asset.time + 1e-12, math.inf)) - 1, 0)
+                    asset.set_discharge_rate(changes[k][1])
+                    if k + 1 < len(changes):
+                        dt = min(dt, changes[k + 1][0] - asset.time)
+                out = asset.step(dt)
                 for tid, m, g in zip(out["tracking_ids"].tolist(), out["masses"].tolist(),
                                      out["grades"].tolist()):
                     acc = outflow.setdefault(tid, [0.0, 0.0])
                     acc[0] += m
                     acc[1] += m * g
+            return True
 
+        in_time = True
         while True:
             nxt = self.inbox.get(self.state.last_applied + 1)
             if nxt is None:
@@ -178,12 +206,14 @@ class StockpileClient:
                 break
             if nxt["time"] > target_time:
                 break
-            step_to(nxt["time"])
+            if not (in_time := step_to(nxt["time"])):
+                break
             asset.receive_bin(nxt["tracking_id"], nxt["mass"], nxt["grade"], nxt["hardness"],
                               nxt["source"])
             del self.inbox[nxt["sequence"]]
             self.state.last_applied = nxt["sequence"]
-        step_to(target_time)
+        if in_time:
+            step_to(target_time)
         self.step_times_ms.append((time.perf_counter() - started) * 1e3)
         if not outflow:
             return None
@@ -300,12 +330,19 @@ class StockpileClient:
             await n["plant"].call_method(n["advance_time"],
                                          ua.Variant(float(self.o.period_s), ua.VariantType.Double))
             self.need_sync = True  # deterministic: take the records from the pending list
-        server_time, setpoint, last_seq = await self.client.read_values(
-            [n["simulation_time"], n["discharge_rate_setpoint"], n["inbound_last_sequence"]])
+        history = [n[k] for k in ("setpoint_change_times", "setpoint_change_values") if k in n]
+        server_time, setpoint, last_seq, *changes = await self.client.read_values(
+            [n["simulation_time"], n["discharge_rate_setpoint"], n["inbound_last_sequence"]]
+            + (history if len(history) == 2 else []))
         if self.need_sync or int(last_seq) > self.known_sequence:
             await self._sync_pending()
         self.asset.set_discharge_rate(float(setpoint))
-        self.advance_to(float(server_time))
+        if changes:
+            self.setpoint_changes = sorted(zip(map(float, changes[0] or []),
+                                               map(float, changes[1] or [])),
+                                           key=lambda change: change[0])  # stable: in order
+        self.advance_to(float(server_time),
+                        None if self.o.lockstep else self.o.cycle_budget_s)
         if self.state.outbox or self.state.last_applied != self.acked:
             self._checkpoint()  # only what will be sent or acknowledged needs to be durable
         await self._send()
@@ -314,6 +351,11 @@ class StockpileClient:
         lag = float(server_now) - self.asset.time
         self.lags_s.append(lag)
         self.max_lag_s = max(self.max_lag_s, lag)
+        now = time.monotonic()
+        if lag > LAG_WARNING_S and now - self._lag_warned_at > 10.0:
+            self._lag_warned_at = now
+            print(f"stockpile: not keeping real time: {lag:.1f} s of plant time behind the "
+                  f"server (nothing is lost; the exchange catches up)", file=sys.stderr, flush=True)
 
     async def _session(self) -> None:
         client = await self._connect()
@@ -348,6 +390,24 @@ class StockpileClient:
     def _done(self) -> bool:
         return self.o.duration_s is not None and self.asset.time >= self.o.duration_s - 1e-9
 
+    def warm_up(self) -> None:
+        """Step a throw-away copy of the asset once before connecting.
+
+        A storage model's first step compiles its numba kernels (measured
+        under CPU load: the first cycle of a ROM stockpile took 48 s); done
+        here, that happens before the exchange starts, not inside a cycle.
+        """
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a one-bin pile is outside any training range
+            asset = StockpileAsset(self.o.model, seed=self.o.seed,
+                                   particle_mass_kg=self.o.particle_mass_kg,
+                                   storage_options=self.o.storage_options)
+            asset.receive_bin(1, 500.0, 0.01, 1.0)
+            asset.set_discharge_rate(100.0)
+            asset.step(self.o.dt_s)
+
     async def run(self) -> int:
         """Run until stopped (or ``duration_s``), reconnecting after failures."""
         from asyncua import ua
@@ -361,6 +421,7 @@ class StockpileClient:
             if self.o.rest_port_file:
                 Path(self.o.rest_port_file).write_text(str(port))
         try:
+            self.warm_up()
             while not self._stop.is_set():
                 try:
                     await self._session()
