@@ -101,6 +101,22 @@ class Belt:
         self.hardness = np.zeros(self.n_bins)
         self.source = np.full(self.n_bins, -1, dtype=np.int32)
 
+    def state(self) -> dict:
+        """The belt as plain JSON data (``restore`` takes it back)."""
+        return {"offset_m": self.offset_m, "speed_m_s": self.speed_m_s,
+                "tracking_id": self.tracking_id.tolist(), "mass": self.mass.tolist(),
+                "grade": self.grade.tolist(), "hardness": self.hardness.tolist(),
+                "source": self.source.tolist()}
+
+    def restore(self, state: dict) -> None:
+        if len(state["mass"]) != self.n_bins:
+            raise ValidationError("ledger", f"a belt of {self.n_bins} bins (the configuration's)",
+                                  f"the stored belt has {len(state['mass'])}")
+        self.offset_m, self.speed_m_s = float(state["offset_m"]), float(state["speed_m_s"])
+        self.tracking_id[:] = np.array(state["tracking_id"], dtype=np.uint64)
+        self.mass[:], self.grade[:] = state["mass"], state["grade"]
+        self.hardness[:], self.source[:] = state["hardness"], state["source"]
+
     def positions(self) -> np.ndarray:
         """Centre of each bin [m] from the loading point."""
         return (np.arange(self.n_bins) + 0.5) * self.bin_length_m + self.offset_m
@@ -166,10 +182,16 @@ class PlantProcess:
         self.report_digests: dict[int, str] = {}
         self.loading_contents: dict[int, float] = {}
         self.cv301_contents: list[dict[int, float]] = [dict() for _ in range(self.cv301.n_bins)]
+        self.cv301_contents[0] = self.loading_contents
         self.bins_out = 0
         self.delivered_mass_kg = 0.0
         self.delivered_by_source: dict[int, float] = {}
         self.outflow_log: list[dict] = []
+        # what changed since the ledger store last saved (``opcua_server.ledger_store``):
+        # ("inbound", InboundRecord) and ("report", sequence, digest, log row, [(tid, left
+        # kg, grade)]); ``revision`` counts every change but the clock's
+        self.journal: list[tuple] = []
+        self.revision = 0
 
     # -------------------------------------------------------------- feeding
     def _lot_at(self, t: float) -> dict:
@@ -205,8 +227,11 @@ class PlantProcess:
             self._load_cv101(t_shift)
             if head["mass"] > 0:
                 new.append(self._discharge(head, t_shift))
-        for _ in range(self.cv301.shifts(dt)):
+        shifts = self.cv301.shifts(dt)
+        for _ in range(shifts):
             self._shift_cv301()
+        if shifts or new or belt.offset_m < offset:
+            self.revision += 1
         self.time += dt
         if 0 < self._discharge_start <= self.time:
             self.discharge_rate_setpoint = self._scheduled_rate
@@ -219,6 +244,7 @@ class PlantProcess:
         record = InboundRecord(self.last_sequence, head["tracking_id"], head["mass"],
                                head["grade"], head["hardness"], head["source"], t)
         self.pending.append(record)
+        self.journal.append(("inbound", record))
         self.entered_mass[record.tracking_id] = record.mass_kg
         self.source_of[record.tracking_id] = record.source
         return record
@@ -231,10 +257,13 @@ class PlantProcess:
             self.delivered_by_source[source] = self.delivered_by_source.get(source, 0.0) + mass
             self.delivered_mass_kg += mass
         belt.shift()
-        self.cv301_contents = [self.loading_contents] + self.cv301_contents[:-1]
         if self.loading_contents:
             self.bins_out += 1
+        # slot 0 is always the loading bin: the loaded one moves on to slot 1
+        # (before, it stayed in slot 0 as well and, without an outflow report
+        # before the next shift, was carried, and delivered, twice)
         self.loading_contents = {}
+        self.cv301_contents = [self.loading_contents] + self.cv301_contents[:-1]
         self._refresh_cv301_slot(0)
 
     def _refresh_cv301_slot(self, slot: int) -> None:
@@ -255,6 +284,7 @@ class PlantProcess:
                                   f"got {sequence}")
         if sequence > self.acknowledged_sequence:
             self.acknowledged_sequence = sequence
+            self.revision += 1
             self.pending = [r for r in self.pending if r.sequence > sequence]
         return self.acknowledged_sequence
 
@@ -344,6 +374,10 @@ class PlantProcess:
         self.outflow_log.append({"time_s": self.time, "sequence": sequence,
                                  "mass_kg": float(mass.sum()),
                                  "by_source": self._by_source(tids, mass)})
+        self.journal.append(("report", sequence, digest, self.outflow_log[-1],
+                             [(tid, self.left_mass[tid], self._grades[tid])
+                              for tid in tids.tolist()]))
+        self.revision += 1
         return "applied"
 
     def _by_source(self, tids: np.ndarray, mass: np.ndarray) -> dict[str, float]:
@@ -363,6 +397,7 @@ class PlantProcess:
         self.discharge_rate_setpoint = rate
         self._discharge_start = 0.0  # the operator's setpoint stands
         self._record_setpoint(self.time)
+        self.revision += 1
 
     def _record_setpoint(self, effective_s: float) -> None:
         changes = self.setpoint_changes
@@ -377,6 +412,54 @@ class PlantProcess:
             raise ExchangeRefused("BadOutOfRange", f"{belt.upper()}.BeltSpeed",
                                   f"in [0, {top:g}] m/s", f"got {speed!r}")
         getattr(self, belt).speed_m_s = speed
+        self.revision += 1
+
+    # ----------------------------------------------------------- persistence
+    def state(self) -> dict:
+        """Everything but the per-tracking-id and per-record tables, as JSON data
+        (the ledger store keeps those as rows, from ``journal``)."""
+        return {
+            "time": self.time, "next_tracking_id": self.next_tracking_id,
+            "last_sequence": self.last_sequence, "acknowledged_sequence": self.acknowledged_sequence,
+            "outbound_sequence": self.outbound_sequence, "duplicate_reports": self.duplicate_reports,
+            "discharge_rate_setpoint": self.discharge_rate_setpoint,
+            "discharge_start": self._discharge_start,
+            "setpoint_changes": [list(c) for c in self.setpoint_changes],
+            "cv101": self.cv101.state(), "cv301": self.cv301.state(),
+            "cv301_contents": [list(c.items()) for c in self.cv301_contents],
+            "bins_out": self.bins_out, "delivered_mass_kg": self.delivered_mass_kg,
+            "delivered_by_source": list(self.delivered_by_source.items()),
+        }
+
+    def restore(self, state: dict, inbound: list[InboundRecord], bins: list[tuple],
+                reports: list[tuple]) -> None:
+        """Back to a saved state: ``state()``'s dict, the inbound records not yet
+        acknowledged, ``(tracking_id, entered kg, source, left kg, grade)`` per
+        bin and ``(sequence, digest, log row)`` per applied outflow report."""
+        self.time = float(state["time"])
+        self.next_tracking_id = int(state["next_tracking_id"])
+        self.last_sequence = int(state["last_sequence"])
+        self.acknowledged_sequence = int(state["acknowledged_sequence"])
+        self.outbound_sequence = int(state["outbound_sequence"])
+        self.duplicate_reports = int(state["duplicate_reports"])
+        self.discharge_rate_setpoint = float(state["discharge_rate_setpoint"])
+        self._discharge_start = float(state["discharge_start"])
+        self.setpoint_changes = [tuple(c) for c in state["setpoint_changes"]]
+        self.cv101.restore(state["cv101"])
+        self.cv301.restore(state["cv301"])
+        self.cv301_contents = [{int(t): m for t, m in slot} for slot in state["cv301_contents"]]
+        self.loading_contents = self.cv301_contents[0]
+        self.bins_out = int(state["bins_out"])
+        self.delivered_mass_kg = float(state["delivered_mass_kg"])
+        self.delivered_by_source = {int(k): v for k, v in state["delivered_by_source"]}
+        self.pending = sorted(inbound, key=lambda r: r.sequence)
+        self.entered_mass = {tid: m for tid, m, _, _, _ in bins}
+        self.source_of = {tid: src for tid, _, src, _, _ in bins}
+        self.left_mass = {tid: left for tid, _, _, left, _ in bins if left > 0}
+        self._grades = {tid: g for tid, _, _, left, g in bins if left > 0}
+        self.report_digests = {seq: digest for seq, digest, _ in reports}
+        self.outflow_log = [row for _, _, row in sorted(reports, key=lambda r: r[0])]
+        self.journal = []
 
     # ---------------------------------------------------------------- ledger
     def ledger(self) -> dict:

@@ -31,6 +31,7 @@ import math
 import signal
 import sys
 import time
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,6 +45,7 @@ from asyncua.crypto.validator import CertificateValidator, CertificateValidatorO
 from asyncua.server.address_space import AttributeService
 
 from opcua_server import sessions
+from opcua_server.ledger_store import LedgerStore
 from opcua_server.process import MAX_REPORT_ROWS, ExchangeRefused, PlantProcess
 from opcua_server.sessions import SessionGuard
 from opcua_server.security import (APPLICATION_URI_SERVER, PlantPermissions, PlantUserManager,
@@ -109,6 +111,7 @@ class PlantAttributeService(AttributeService):
                     raise ExchangeRefused("BadTypeMismatch", item.NodeId.Identifier,
                                           f"a scalar {target.variant.name}", f"got {got}")
                 target.apply(value)
+                self.plant.store.save(self.plant.process)
             except ExchangeRefused as exc:
                 await self.plant.refuse(exc.status, exc.message)
                 results.append(ua.StatusCode(getattr(ua.StatusCodes, exc.status)))
@@ -206,6 +209,7 @@ class PlantServer:
         self.process = PlantProcess(config)
         self._published_setpoint = self.process.discharge_rate_setpoint
         self._published_change = self.process.setpoint_changes[-1]
+        self.instance_id = str(uuid.uuid4())
         srv = config["server"]
         self.host, self.port = srv["host"], int(srv["port"])
         self.state_dir = Path(srv["state_dir"])
@@ -247,6 +251,17 @@ class PlantServer:
         await server.load_private_key(str(pki["key"]))
         server.set_certificate_validator(TrustListValidator(pki["trusted"]))
         self.idx = await server.register_namespace(self.uri)
+        self.store = LedgerStore(self.state_dir / "ledger.sqlite")
+        if self.store.load(self.process):
+            p = self.process
+            print(f"serve-800xa: resumed ledger {self.store.ledger_id} ({self.store.path}) at "
+                  f"t={p.time:.3f} s: last inbound {p.last_sequence}, acknowledged "
+                  f"{p.acknowledged_sequence}, {len(p.pending)} pending, outbound "
+                  f"{p.outbound_sequence}, next tracking id {p.next_tracking_id}",
+                  file=sys.stderr, flush=True)
+            self._published_setpoint = p.discharge_rate_setpoint
+            self._published_change = p.setpoint_changes[-1]
+        self.store.save(self.process, force=True)
         await self._build_address_space()
         policies = list(SECURE_POLICIES)
         if self.insecure:
@@ -286,6 +301,11 @@ class PlantServer:
                          ua.VariantType.String, ua.VariantType.Boolean)
         await var(plant, "Plant.SimulationTime", 0.0, D, description="simulation time [s]")
         await var(plant, "Plant.Lockstep", self.lockstep, B)
+        await var(plant, "Plant.LedgerId", self.store.ledger_id, S,
+                  description="identity of the plant's durable ledger (STATE/ledger.sqlite); "
+                              "the same across restarts that kept it")
+        await var(plant, "Plant.ServerInstanceId", self.instance_id, S,
+                  description="new at every start of the server process")
         self._advance_node = await plant.add_method(
             nid("Plant.AdvanceTime"), ua.QualifiedName("AdvanceTime", idx),
             self._method((("seconds", D, False),), self._advance_time),
@@ -452,6 +472,7 @@ class PlantServer:
             dt = min(dt, max(self.until_s - self.process.time, 0.0))
         async with self._lock:
             records = self.process.advance(dt)
+            self.store.save(self.process)  # durable before anyone sees it
             await self.publish()
         if self.until_s is not None and not self.paused and \
                 self.process.time >= self.until_s - 1e-9:
@@ -491,6 +512,8 @@ class PlantServer:
         self.paused = True
 
     async def shutdown(self) -> None:
+        self.store.save(self.process, force=True)
+        self.store.close()
         await self.server.stop()
 
     def ledger(self) -> dict:
@@ -553,6 +576,7 @@ class PlantServer:
     async def _acknowledge(self, sequence: int):
         async with self._lock:
             acked = self.process.acknowledge(sequence)
+            self.store.save(self.process)
             await self._publish_inbound()
         return f"acknowledged up to {acked}", ua.VariantType.String
 
@@ -564,6 +588,7 @@ class PlantServer:
             message = self.process.report_outflow(sequence, np.array(tracking_ids, dtype=np.uint64),
                                                   np.array(masses, dtype=float),
                                                   np.array(grades, dtype=float))
+            self.store.save(self.process)
             await self.publish()
         return message, ua.VariantType.String
 

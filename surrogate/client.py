@@ -56,6 +56,10 @@ LAG_WARNING_S = 2.0
 stderr that it does not keep real time (at most every 10 s of wall time)."""
 
 
+class LedgerChanged(Exception):
+    """The server's ledger is not the one the stockpile's state was exchanged with."""
+
+
 @dataclass
 class ClientOptions:
     """Options of the stockpile client (times in seconds of simulation unless wall)."""
@@ -96,6 +100,7 @@ class ClientState:
     outflow_sequence: int = 0
     outbox: list = field(default_factory=list)
     heartbeat: int = 0
+    ledger_id: str | None = None  # the server ledger this state was exchanged with
     version: int = CHECKPOINT_VERSION
 
 
@@ -122,6 +127,7 @@ class StockpileClient:
         # empty: the setpoint read in the cycle applies to the whole cycle
         self.setpoint_changes: list[tuple[float, float]] = []
         self._lag_warned_at = -math.inf
+        self.server_instance = None
 
     @property
     def asset(self) -> StockpileAsset:
@@ -263,6 +269,32 @@ class StockpileClient:
                 text = f"ns={namespaces.index(uri)};{rest}"
             self.nodes[name] = client.get_node(ua.NodeId.from_string(text))
 
+    async def _check_ledger(self) -> None:
+        """Go on only with the server ledger this state was exchanged with.
+
+        A server restarted without its ledger restarts its sequence numbers
+        and tracking ids: acknowledging or reporting against it would drop
+        or misapply bins, so the client stops and says why.
+        """
+        n = self.nodes
+        if "server_instance_id" in n:
+            instance = await n["server_instance_id"].read_value()
+            if self.server_instance not in (None, instance):
+                print(f"stockpile: the server restarted (instance {instance}); continuing on "
+                      f"its ledger", file=sys.stderr, flush=True)
+            self.server_instance = instance
+        if "ledger_id" not in n:
+            return
+        ledger = await n["ledger_id"].read_value()
+        if self.state.ledger_id is None:
+            self.state.ledger_id = ledger
+        elif ledger != self.state.ledger_id:
+            raise LedgerChanged(ValidationError(
+                "ledger", f"the server ledger {self.state.ledger_id} this stockpile exchanged with",
+                f"the server at {self.o.server_url} has ledger {ledger}: it was restarted "
+                f"without its ledger (STATE/ledger.sqlite); start the stockpile from a fresh "
+                f"checkpoint to exchange with it"))
+
     async def _sync_pending(self) -> None:
         n = self.nodes
         names = ("pending_sequence", "pending_tracking_ids", "pending_masses", "pending_grades",
@@ -362,6 +394,7 @@ class StockpileClient:
         self.client = client
         try:
             await self._resolve(client)
+            await self._check_ledger()
             subscription = await client.create_subscription(50, self)
             await subscription.subscribe_events(self.nodes["sp201"],
                                                 self.nodes["bin_discharged_event_type"],
@@ -425,6 +458,9 @@ class StockpileClient:
             while not self._stop.is_set():
                 try:
                     await self._session()
+                except LedgerChanged as exc:
+                    print(f"stockpile: {exc}", file=sys.stderr, flush=True)
+                    return 1
                 except ua.UaStatusCodeError as exc:
                     if exc.code in (ua.StatusCodes.BadUserAccessDenied,
                                     ua.StatusCodes.BadIdentityTokenRejected,
