@@ -37,7 +37,6 @@ import json
 import logging
 import math
 import os
-import pickle
 import sys
 import time
 from dataclasses import dataclass, field
@@ -46,11 +45,12 @@ from pathlib import Path
 import numpy as np
 
 from cosim.errors import ValidationError
+from surrogate.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from surrogate.stockpile import StockpileAsset
 
 log = logging.getLogger("surrogate.client")
 
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
 LAG_WARNING_S = 2.0
 """Lag [s of plant time] behind the server above which the client says on
 stderr that it does not keep real time (at most every 10 s of wall time)."""
@@ -138,11 +138,9 @@ class StockpileClient:
         path = self.o.checkpoint
         if path is None or not Path(path).exists():
             return None
-        with open(path, "rb") as handle:
-            state = pickle.load(handle)  # our own file, written by _checkpoint
-        if getattr(state, "version", None) != CHECKPOINT_VERSION:
-            raise ValidationError("checkpoint", f"a version {CHECKPOINT_VERSION} checkpoint",
-                                  f"{path} has another version")
+        state = load_checkpoint(path)  # data only: reading it runs no code from the file
+        if not isinstance(state, ClientState) or state.version != CHECKPOINT_VERSION:
+            raise CheckpointError(path, f"not a version {CHECKPOINT_VERSION} stockpile state")
         if state.asset.model_name != self.o.model:
             raise ValidationError("model", f"{state.asset.model_name!r} (the checkpoint's model)",
                                   f"got {self.o.model!r}")
@@ -152,15 +150,8 @@ class StockpileClient:
         return state
 
     def _checkpoint(self) -> None:
-        path = self.o.checkpoint
-        if path is None:
-            return
-        tmp = Path(f"{path}.tmp")
-        with open(tmp, "wb") as handle:
-            pickle.dump(self.state, handle, protocol=pickle.HIGHEST_PROTOCOL)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
+        if self.o.checkpoint is not None:
+            save_checkpoint(self.o.checkpoint, self.state)
 
     # ------------------------------------------------------------ exchange
     def _accept_records(self, records: list[dict]) -> None:
