@@ -33,6 +33,7 @@ import sys
 import time
 import uuid
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -120,7 +121,10 @@ class PlantAttributeService(AttributeService):
                 await self.plant.refuse("BadTypeMismatch", f"{item.NodeId.Identifier}: {exc}")
                 results.append(ua.StatusCode(ua.StatusCodes.BadTypeMismatch))
                 continue
-            stored = ua.DataValue(ua.Variant(self.plant.coerce(value, target.variant), target.variant))
+            now = _now()
+            stored = ua.DataValue(ua.Variant(self.plant.coerce(value, target.variant),
+                                             target.variant), SourceTimestamp=now,
+                                  ServerTimestamp=now)
             results.append(await self._aspace.write_attribute_value(
                 item.NodeId, ua.AttributeIds.Value, stored))
             await self.plant.publish_setpoint_changes()  # with the setpoint, at once
@@ -285,13 +289,16 @@ class PlantServer:
         p = self.process
         plant = await objects.add_object(nid("Plant"), ua.QualifiedName("Plant", idx))
         self.plant_node = plant
+        await _describe(plant, "the mock 800xA plant: CV101 -> SP201 -> CV301")
 
-        async def var(parent, name, value, vtype, writable=None, description=""):
-            node = await parent.add_variable(nid(name), ua.QualifiedName(name.split(".")[-1], idx),
-                                             ua.Variant(value, vtype))
-            if description:
-                await node.write_attribute(ua.AttributeIds.Description,
-                                           ua.DataValue(ua.LocalizedText(description)))
+        async def var(parent, name, value, vtype, description, *, unit=None, eu_range=None,
+                      dims=None, writable=None):
+            """A variable with its description; ``unit`` (a UNITS key) makes it an
+            AnalogUnitType, with ``eu_range`` an AnalogItemType (both with
+            EngineeringUnits); ``dims`` a one-dimensional array of that many
+            elements (0: any length)."""
+            node = await self._add_variable(parent, nid(name), name.split(".")[-1], value, vtype,
+                                            description, unit, eu_range, dims)
             if writable is not None:
                 await node.set_writable()
                 self.writable[node.nodeid] = writable
@@ -299,63 +306,101 @@ class PlantServer:
 
         D, U, I, S, B = (ua.VariantType.Double, ua.VariantType.UInt64, ua.VariantType.Int32,
                          ua.VariantType.String, ua.VariantType.Boolean)
-        await var(plant, "Plant.SimulationTime", 0.0, D, description="simulation time [s]")
-        await var(plant, "Plant.Lockstep", self.lockstep, B)
+        await var(plant, "Plant.SimulationTime", 0.0, D, "simulation time of the plant",
+                  unit="s")
+        await var(plant, "Plant.Lockstep", self.lockstep, B,
+                  "true if the clock moves only by AdvanceTime")
         await var(plant, "Plant.LedgerId", self.store.ledger_id, S,
-                  description="identity of the plant's durable ledger (STATE/ledger.sqlite); "
-                              "the same across restarts that kept it")
+                  "identity of the plant's durable ledger (STATE/ledger.sqlite); "
+                  "the same across restarts that kept it")
         await var(plant, "Plant.ServerInstanceId", self.instance_id, S,
-                  description="new at every start of the server process")
+                  "new at every start of the server process")
         self._advance_node = await plant.add_method(
             nid("Plant.AdvanceTime"), ua.QualifiedName("AdvanceTime", idx),
             self._method((("seconds", D, False),), self._advance_time),
             [_arg("seconds", ua.ObjectIds.Double, "simulation seconds to advance")],
             [_arg("simulation_time", ua.ObjectIds.Double, "new simulation time [s]")])
 
+        def belt(b, top, name):
+            return (
+                ("BeltSpeed", b.speed_m_s, D, "belt speed", "m/s", (0.0, top), None,
+                 Writable(("operator",), lambda v: p.set_belt_speed(name, v))),
+                ("BinLength", b.bin_length_m, D, "length of one bin", "m", None, None, None))
+
         cv101 = await plant.add_object(nid("Plant.CV101"), ua.QualifiedName("CV101", idx))
-        await var(cv101, "Plant.CV101.BeltSpeed", p.cv101.speed_m_s, D,
-                  Writable(("operator",), lambda v: p.set_belt_speed("cv101", v)), "belt speed [m/s]")
-        await var(cv101, "Plant.CV101.BinLength", p.cv101.bin_length_m, D, description="[m]")
-        for name, vtype in (("BinTrackingIds", U), ("BinMasses", D), ("BinGrades", D),
-                            ("BinHardness", D), ("BinSources", I), ("BinPositions", D)):
-            await var(cv101, f"Plant.CV101.{name}", [], vtype)
-        await var(cv101, "Plant.CV101.Mass", 0.0, D, description="mass on the belt [kg]")
+        await _describe(cv101, "incoming conveyor, discharges onto SP201 (bins of the belt)")
+        n1, n3 = p.cv101.n_bins, p.cv301.n_bins
+        for row in belt(p.cv101, p.max_belt_speed["cv101"], "cv101") + (
+                ("BinTrackingIds", [], U, "tracking id per bin, loading point first (0 = empty)",
+                 None, None, n1, None),
+                ("BinMasses", [], D, "mass per bin, loading point first", "kg", None, n1, None),
+                ("BinGrades", [], D, "ore grade (mass fraction) per bin", "1", (0.0, 1.0), n1,
+                 None),
+                ("BinHardness", [], D, "hardness index per bin", None, None, n1, None),
+                ("BinSources", [], I, "source index per bin (-1 = empty)", None, None, n1, None),
+                ("BinPositions", [], D, "bin centres from the loading point", "m", None, n1,
+                 None),
+                ("Mass", 0.0, D, "mass on the belt", "kg", None, None, None)):
+            name, value, vtype, text, unit, eu_range, dims, writable = row
+            await var(cv101, f"Plant.CV101.{name}", value, vtype, text, unit=unit,
+                      eu_range=eu_range, dims=dims, writable=writable)
 
         sp = await plant.add_object(nid("Plant.SP201"), ua.QualifiedName("SP201", idx))
         self.sp201_node = sp
+        await _describe(sp, "stockpile: feeder setpoint, the values the stockpile reports and "
+                            "the loss-free exchange; emits BinDischargedEventType")
+        top = p.max_discharge_rate
         await var(sp, "Plant.SP201.DischargeRateSetpoint", p.discharge_rate_setpoint, D,
-                  Writable(("operator",), p.set_discharge_rate), "feeder setpoint [kg/s], 0..2000")
+                  "feeder discharge-rate setpoint", unit="kg/s", eu_range=(0.0, top),
+                  writable=Writable(("operator",), p.set_discharge_rate))
         await var(sp, "Plant.SP201.SetpointChangeTimes", [0.0], D,
-                  description="plant time [s] at which each of the latest setpoints took effect")
+                  "plant time at which each of the latest setpoints took effect", unit="s",
+                  dims=0)
         await var(sp, "Plant.SP201.SetpointChangeValues", [p.discharge_rate_setpoint], D,
-                  description="the latest setpoints [kg/s], one per SetpointChangeTimes entry")
-        await var(sp, "Plant.SP201.HeldMass", 0.0, D,
-                  Writable(("surrogate",), lambda v: _check("HeldMass", v, 0.0, math.inf)),
-                  "mass held, reported by the stockpile [kg]")
+                  "the latest setpoints, one per SetpointChangeTimes entry", unit="kg/s",
+                  eu_range=(0.0, top), dims=0)
+        await var(sp, "Plant.SP201.HeldMass", 0.0, D, "mass held, reported by the stockpile",
+                  unit="kg", writable=Writable(("surrogate",),
+                                               lambda v: _check("HeldMass", v, 0.0, math.inf)))
         await var(sp, "Plant.SP201.AverageGrade", 0.0, D,
-                  Writable(("surrogate",), lambda v: _check("AverageGrade", v, 0.0, 1.0)),
-                  "average grade reported by the stockpile [-]")
+                  "average ore grade (mass fraction) reported by the stockpile", unit="1",
+                  eu_range=(0.0, 1.0),
+                  writable=Writable(("surrogate",), lambda v: _check("AverageGrade", v, 0.0, 1.0)))
         await var(sp, "Plant.SP201.Heartbeat", 0, U,
-                  Writable(("surrogate",), lambda v: _check("Heartbeat", v, 0, 2**64 - 1),
-                           ua.VariantType.UInt64), "stockpile heartbeat counter")
+                  "stockpile heartbeat counter, +1 per exchange cycle",
+                  writable=Writable(("surrogate",), lambda v: _check("Heartbeat", v, 0, 2**64 - 1),
+                                    ua.VariantType.UInt64))
         await var(sp, "Plant.SP201.SurrogateTime", 0.0, D,
-                  Writable(("surrogate",), self._surrogate_time),
-                  "the stockpile's simulation time [s]")
-        await var(sp, "Plant.SP201.LastRefusal", "", S, description="last refused write or call")
+                  "the stockpile's simulation time (lag = SimulationTime - this)", unit="s",
+                  writable=Writable(("surrogate",), self._surrogate_time))
+        await var(sp, "Plant.SP201.LastRefusal", "", S,
+                  "Status: field: must be ... (got ...) of the last refused write or call")
         inbound = await sp.add_object(nid("Plant.SP201.Inbound"), ua.QualifiedName("Inbound", idx))
-        await var(inbound, "Plant.SP201.Inbound.LastSequence", 0, U)
-        await var(inbound, "Plant.SP201.Inbound.AcknowledgedSequence", 0, U)
-        for name, vtype in (("PendingSequence", U), ("PendingTrackingIds", U), ("PendingMasses", D),
-                            ("PendingGrades", D), ("PendingHardness", D), ("PendingSources", I),
-                            ("PendingTimes", D)):
-            await var(inbound, f"Plant.SP201.Inbound.{name}", [], vtype)
+        await _describe(inbound, "bins discharged onto SP201, pending until acknowledged")
+        await var(inbound, "Plant.SP201.Inbound.LastSequence", 0, U,
+                  "last inbound sequence number given")
+        await var(inbound, "Plant.SP201.Inbound.AcknowledgedSequence", 0, U,
+                  "highest sequence number acknowledged by the stockpile")
+        for name, vtype, text, unit, eu_range in (
+                ("PendingSequence", U, "sequence number of each pending record", None, None),
+                ("PendingTrackingIds", U, "tracking id of each pending record", None, None),
+                ("PendingMasses", D, "mass of each pending record", "kg", None),
+                ("PendingGrades", D, "ore grade (mass fraction) of each pending record", "1",
+                 (0.0, 1.0)),
+                ("PendingHardness", D, "hardness index of each pending record", None, None),
+                ("PendingSources", I, "source index of each pending record", None, None),
+                ("PendingTimes", D, "discharge time of each pending record", "s", None)):
+            await var(inbound, f"Plant.SP201.Inbound.{name}", [], vtype, text, unit=unit,
+                      eu_range=eu_range, dims=0)
         self._ack_node = await inbound.add_method(
             nid("Plant.SP201.Inbound.Acknowledge"), ua.QualifiedName("Acknowledge", idx),
             self._method((("sequence", U, False),), self._acknowledge),
             [_arg("sequence", ua.ObjectIds.UInt64, "highest sequence number applied")],
             [_arg("message", ua.ObjectIds.String, "result")])
         outbound = await sp.add_object(nid("Plant.SP201.Outbound"), ua.QualifiedName("Outbound", idx))
-        await var(outbound, "Plant.SP201.Outbound.LastSequence", 0, U)
+        await _describe(outbound, "outflow of SP201 onto CV301, one report per number")
+        await var(outbound, "Plant.SP201.Outbound.LastSequence", 0, U,
+                  "last outflow report number applied")
         self._report_node = await outbound.add_method(
             nid("Plant.SP201.Outbound.ReportOutflow"), ua.QualifiedName("ReportOutflow", idx),
             self._method((("sequence", U, False), ("tracking_ids", U, True),
@@ -367,15 +412,27 @@ class PlantServer:
             [_arg("message", ua.ObjectIds.String, "applied / already applied / refusal")])
 
         cv301 = await plant.add_object(nid("Plant.CV301"), ua.QualifiedName("CV301", idx))
-        await var(cv301, "Plant.CV301.BeltSpeed", p.cv301.speed_m_s, D,
-                  Writable(("operator",), lambda v: p.set_belt_speed("cv301", v)), "belt speed [m/s]")
-        await var(cv301, "Plant.CV301.BinLength", p.cv301.bin_length_m, D, description="[m]")
-        for name, vtype in (("BinMasses", D), ("BinGrades", D), ("BinPositions", D),
-                            ("ContentsBin", I), ("ContentsTrackingIds", U), ("ContentsMasses", D)):
-            await var(cv301, f"Plant.CV301.{name}", [], vtype)
-        await var(cv301, "Plant.CV301.Mass", 0.0, D, description="mass on the belt [kg]")
-        await var(cv301, "Plant.CV301.Grade", 0.0, D, description="average grade on the belt [-]")
-        await var(cv301, "Plant.CV301.DeliveredMass", 0.0, D, description="[kg]")
+        await _describe(cv301, "outgoing conveyor, loaded at SP201's outlet (bins of the belt)")
+        for row in belt(p.cv301, p.max_belt_speed["cv301"], "cv301") + (
+                ("BinMasses", [], D, "mass per bin, loading point first", "kg", None, n3, None),
+                ("BinGrades", [], D, "ore grade (mass fraction) per bin", "1", (0.0, 1.0), n3,
+                 None),
+                ("BinPositions", [], D, "bin centres from the loading point", "m", None, n3,
+                 None),
+                ("ContentsBin", [], I, "bin index of each (bin, tracking id) row", None, None,
+                 0, None),
+                ("ContentsTrackingIds", [], U, "tracking id of each (bin, tracking id) row",
+                 None, None, 0, None),
+                ("ContentsMasses", [], D, "mass of each (bin, tracking id) row", "kg", None, 0,
+                 None),
+                ("Mass", 0.0, D, "mass on the belt", "kg", None, None, None),
+                ("Grade", 0.0, D, "average ore grade (mass fraction) on the belt", "1",
+                 (0.0, 1.0), None, None),
+                ("DeliveredMass", 0.0, D, "mass delivered at the end of the belt", "kg", None,
+                 None, None)):
+            name, value, vtype, text, unit, eu_range, dims, writable = row
+            await var(cv301, f"Plant.CV301.{name}", value, vtype, text, unit=unit,
+                      eu_range=eu_range, dims=dims, writable=writable)
 
         etype = await s.nodes.base_event_type.add_object_type(
             nid("BinDischargedEventType"), ua.QualifiedName("BinDischargedEventType", idx))
@@ -384,9 +441,55 @@ class PlantServer:
                                      ua.QualifiedName(name, idx), ua.get_default_value(vtype),
                                      varianttype=vtype)
         self.event_generator = await s.get_event_generator(etype, sp)
+        for method, text in (
+                (self._advance_node, "lockstep only: advance the plant by seconds; returns the "
+                                     "new simulation time"),
+                (self._ack_node, "drop the pending records up to sequence (the stockpile has "
+                                 "applied them)"),
+                (self._report_node, "apply one outflow report once (tracking ids, masses [kg], "
+                                    f"grades) onto CV301; at most {MAX_REPORT_ROWS} tracking ids")):
+            await _describe(method, text)
         self._methods_by_role = {
             "surrogate": {self._ack_node.nodeid, self._report_node.nodeid, self._advance_node.nodeid},
             "operator": set(), "viewer": set()}
+
+    async def _add_variable(self, parent, nodeid, name, value, vtype, description, unit,
+                            eu_range, dims):
+        item = ua.AddNodesItem()
+        item.RequestedNewNodeId = nodeid
+        item.BrowseName = ua.QualifiedName(name, self.idx)
+        item.NodeClass = ua.NodeClass.Variable
+        item.ParentNodeId = parent.nodeid
+        item.ReferenceTypeId = ua.NodeId(ua.ObjectIds.HasComponent)
+        item.TypeDefinition = ua.NodeId(
+            ua.ObjectIds.AnalogItemType if eu_range is not None else
+            ua.ObjectIds.AnalogUnitType if unit is not None else ua.ObjectIds.BaseDataVariableType)
+        attrs = ua.VariableAttributes()
+        attrs.DisplayName = ua.LocalizedText(name)
+        attrs.Description = ua.LocalizedText(description)
+        attrs.DataType = ua.NodeId(getattr(ua.ObjectIds, vtype.name))
+        attrs.Value = ua.Variant(value, vtype)
+        attrs.ValueRank = ua.ValueRank.Scalar if dims is None else ua.ValueRank.OneDimension
+        attrs.ArrayDimensions = None if dims is None else [int(dims)]
+        attrs.AccessLevel = attrs.UserAccessLevel = ua.AccessLevel.CurrentRead.mask
+        item.NodeAttributes = attrs
+        result = (await self.server.iserver.isession.add_nodes([item]))[0]
+        result.StatusCode.check()
+        node = self.server.get_node(nodeid)
+        now = _now()  # timestamps from the start, also on values that never change
+        await self.server.write_attribute_value(nodeid, ua.DataValue(
+            ua.Variant(value, vtype), SourceTimestamp=now, ServerTimestamp=now))
+        if unit is not None:
+            await node.add_property(ua.NodeId(f"{nodeid.Identifier}.EngineeringUnits", self.idx),
+                                    ua.QualifiedName("EngineeringUnits", 0),
+                                    ua.Variant(_eu_information(unit)),
+                                    datatype=ua.NodeId(ua.ObjectIds.EUInformation))
+        if eu_range is not None:
+            await node.add_property(ua.NodeId(f"{nodeid.Identifier}.EURange", self.idx),
+                                    ua.QualifiedName("EURange", 0),
+                                    ua.Variant(ua.Range(*map(float, eu_range))),
+                                    datatype=ua.NodeId(ua.ObjectIds.Range))
+        return node
 
     # ---------------------------------------------------------------- values
     @staticmethod
@@ -394,7 +497,9 @@ class PlantServer:
         return int(value) if vtype == ua.VariantType.UInt64 else float(value)
 
     async def _write(self, name: str, value, vtype) -> None:
-        await self.server.write_attribute_value(self.nid(name), ua.DataValue(ua.Variant(value, vtype)))
+        now = _now()
+        await self.server.write_attribute_value(self.nid(name), ua.DataValue(
+            ua.Variant(value, vtype), SourceTimestamp=now, ServerTimestamp=now))
 
     async def publish(self) -> None:
         """Copy the process state into the address space."""
@@ -598,6 +703,33 @@ class PlantServer:
                                   "called only on a server started with --lockstep")
         await self.advance(_check("seconds", seconds, 0.0, 3600.0))
         return self.process.time, ua.VariantType.Double
+
+
+UNITS = {
+    "s": ("SEC", "s", "second"), "m": ("MTR", "m", "metre"),
+    "m/s": ("MTS", "m/s", "metre per second"), "kg": ("KGM", "kg", "kilogram"),
+    "kg/s": ("KGS", "kg/s", "kilogram per second"), "1": ("C62", "1", "one (mass fraction)"),
+}
+"""EngineeringUnits: UNECE Recommendation 20 common codes (OPC UA Part 8, EUInformation)."""
+UNECE_NAMESPACE = "http://www.opcfoundation.org/UA/units/un/cefact"
+
+
+def _eu_information(unit: str) -> ua.EUInformation:
+    code, symbol, name = UNITS[unit]
+    info = ua.EUInformation()
+    info.NamespaceUri = UNECE_NAMESPACE
+    info.UnitId = int.from_bytes(code.encode("ascii"), "big")  # Part 8: the code's octets
+    info.DisplayName = ua.LocalizedText(symbol)
+    info.Description = ua.LocalizedText(name)
+    return info
+
+
+def _now():
+    return datetime.now(timezone.utc)
+
+
+async def _describe(node, text: str) -> None:
+    await node.write_attribute(ua.AttributeIds.Description, ua.DataValue(ua.LocalizedText(text)))
 
 
 def _arg(name: str, datatype: int, description: str, array: bool = False) -> ua.Argument:
