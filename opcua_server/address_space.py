@@ -30,14 +30,15 @@ _ACCESS = {1: "read", 3: "read, write"}
 async def browse(client) -> dict:
     """``{"nodes": [row, ...], "event_fields": [...], "methods": {...}}`` of our namespace."""
     idx = await client.get_namespace_index(NAMESPACE_URI)
-    rows, methods = [], {}
+    rows, methods, seen = [], {}, set()
 
     async def visit(node, path):
         for ref in await node.get_references(_HIERARCHY, ua.BrowseDirection.Forward,
                                              includesubtypes=True):
             child = client.get_node(ref.NodeId)
-            if ref.NodeId.NamespaceIndex != idx:
-                continue
+            if ref.NodeId.NamespaceIndex != idx or ref.NodeId in seen:
+                continue  # (SP201 is a component of Plant and also its HasNotifier target)
+            seen.add(ref.NodeId)
             name = ref.BrowseName.Name
             row = await _describe(client, child, f"{path}/{name}", ref)
             rows.append(row)

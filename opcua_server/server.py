@@ -234,6 +234,7 @@ class PlantServer:
     async def start(self) -> None:
         server = Server()
         self.server = server
+        server.iserver.bind_condition_methods = True  # ConditionRefresh, as generic clients call it
         await server.init()
         users_file = self.state_dir / "users.toml"
         created = ensure_users(users_file)
@@ -441,6 +442,12 @@ class PlantServer:
                                      ua.QualifiedName(name, idx), ua.get_default_value(vtype),
                                      varianttype=vtype)
         self.event_generator = await s.get_event_generator(etype, sp)
+        # the notifier chain Server -> Plant -> SP201: a generic client subscribed to
+        # the Server object (UaExpert's event view) gets the bins too
+        await plant.set_event_notifier([ua.EventNotifier.SubscribeToEvents])
+        await s.nodes.server.add_reference(plant.nodeid, ua.ObjectIds.HasNotifier)
+        await plant.add_reference(sp.nodeid, ua.ObjectIds.HasNotifier)
+        self._notifiers = (plant.nodeid, s.nodes.server.nodeid)
         for method, text in (
                 (self._advance_node, "lockstep only: advance the plant by seconds; returns the "
                                      "new simulation time"),
@@ -449,9 +456,12 @@ class PlantServer:
                 (self._report_node, "apply one outflow report once (tracking ids, masses [kg], "
                                     f"grades) onto CV301; at most {MAX_REPORT_ROWS} tracking ids")):
             await _describe(method, text)
+        refresh = {ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+                   ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh2)}
         self._methods_by_role = {
-            "surrogate": {self._ack_node.nodeid, self._report_node.nodeid, self._advance_node.nodeid},
-            "operator": set(), "viewer": set()}
+            "surrogate": {self._ack_node.nodeid, self._report_node.nodeid, self._advance_node.nodeid,
+                          *refresh},
+            "operator": set(refresh), "viewer": set(refresh)}
 
     async def _add_variable(self, parent, nodeid, name, value, vtype, description, unit,
                             eu_range, dims):
@@ -594,6 +604,11 @@ class PlantServer:
             ev.event.Source = ua.Variant(r.source, ua.VariantType.Int32)
             ev.event.DischargeTime = r.time_s
             await ev.trigger(message=f"bin {r.tracking_id} discharged onto SP201 (seq {r.sequence})")
+            emitter = ev.event.emitting_node
+            for notifier in self._notifiers:  # the same event, up the notifier chain
+                ev.event.emitting_node = notifier
+                await self.server.iserver.subscription_service.trigger_event(ev.event)
+            ev.event.emitting_node = emitter
 
     async def run(self) -> None:
         """Serve until ``stop()``; advance in real time unless in lockstep."""

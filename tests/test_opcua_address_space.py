@@ -113,3 +113,41 @@ def test_the_server_certificate_names_the_address_its_endpoint_advertises(plant)
     assert "localhost" in names.get_values_for_type(x509.DNSName)
     assert "urn:minetwin:mock800xa:server" in names.get_values_for_type(
         x509.UniformResourceIdentifier)
+
+
+def test_bin_events_reach_a_generic_client_subscribed_to_the_server_object(plant):
+    server, state = plant
+
+    class Events:
+        received = []
+
+        def event_notification(self, event):
+            Events.received.append(int(event.Sequence))
+
+    async def body():
+        viewer = await connect(server.url, state, "viewer")
+        surrogate = await connect(server.url, state, "surrogate")
+        try:
+            idx = await viewer.get_namespace_index(NS)
+            chain = await viewer.nodes.server.get_referenced_nodes(
+                ua.ObjectIds.HasNotifier, ua.BrowseDirection.Forward)
+            subscription = await viewer.create_subscription(50, Events())
+            event_type = viewer.get_node(ua.NodeId("BinDischargedEventType", idx))
+            await subscription.subscribe_events(viewer.nodes.server, event_type, queuesize=1000)
+            refresh = await viewer.get_node(ua.ObjectIds.ConditionType).call_method(
+                ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+                ua.Variant(subscription.subscription_id, ua.VariantType.UInt32))
+            await surrogate.get_node(ua.NodeId("Plant", idx)).call_method(
+                ua.NodeId("Plant.AdvanceTime", idx), ua.Variant(40.0, ua.VariantType.Double))
+            await asyncio.sleep(1.0)
+            return [n.nodeid.Identifier for n in chain], refresh
+        finally:
+            await surrogate.disconnect()
+            await viewer.disconnect()
+
+    chain, refresh = asyncio.run(body())
+    assert "Plant" in chain  # Server -HasNotifier-> Plant -HasNotifier-> SP201
+    assert refresh is None or refresh == []  # ConditionRefresh is Good for a viewer
+    received = Events.received
+    assert len(received) >= 15  # CV101's first bin arrives after 20 s: ~1 bin per s
+    assert received == list(range(received[0], received[0] + len(received)))
