@@ -24,7 +24,8 @@ from asyncua import ua
 NAMESPACE_URI = "urn:minetwin:mock800xa"
 DEFAULT_OUT = Path(__file__).with_name("ADDRESS_SPACE.md")
 _HIERARCHY = ua.NodeId(ua.ObjectIds.HierarchicalReferences)
-_ACCESS = {1: "read", 3: "read, write"}
+_ACCESS = ((1, "read"), (2, "write"), (4, "history"))
+"""AccessLevel bits (CurrentRead, CurrentWrite, HistoryRead)."""
 
 
 async def browse(client) -> dict:
@@ -74,7 +75,7 @@ async def _describe(client, node, path, ref) -> dict:
         dims = (await node.read_attribute(ua.AttributeIds.ArrayDimensions)).Value.Value or []
         row["rank"] = f"array [{', '.join(str(d) if d else 'any' for d in dims)}]"
     level = (await node.read_attribute(ua.AttributeIds.AccessLevel)).Value.Value
-    row["access"] = _ACCESS.get(level & 3, str(level))
+    row["access"] = ", ".join(name for bit, name in _ACCESS if level & bit)
     for prop in await node.get_properties():
         name = (await prop.read_browse_name()).Name
         value = await prop.read_value()

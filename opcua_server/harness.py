@@ -31,15 +31,17 @@ def free_port() -> int:
 
 
 def prepare_state(root: Path) -> dict:
-    """Users with fresh random passwords, a trusted client certificate, no ledger.
+    """Users with fresh random passwords, a trusted client certificate, no ledger
+    and no history.
 
     Returns ``{"server_state", "client_state", "passwords": {role: pw},
     "client_cert", "client_key", "password_files": {role: path}}``.
     """
     root = Path(root)
     server_state, client_state = root / "server", root / "client"
-    for name in ("ledger.sqlite", "ledger.sqlite-wal", "ledger.sqlite-shm"):
-        (server_state / name).unlink(missing_ok=True)  # a new run: a new plant
+    for stem in ("ledger", "history"):
+        for suffix in (".sqlite", ".sqlite-wal", ".sqlite-shm"):
+            (server_state / f"{stem}{suffix}").unlink(missing_ok=True)  # a new run: a new plant
     passwords = {role: secrets.token_urlsafe(12) for role in ROLES}
     write_users(server_state / "users.toml", {r: (r, pw) for r, pw in passwords.items()})
     files = {}

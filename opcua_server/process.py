@@ -35,6 +35,7 @@ Parameters come from the configuration (``opcua_server.config``); units SI.
 from __future__ import annotations
 
 import hashlib
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,6 +46,9 @@ MASS_TOLERANCE = 1e-9
 """Relative slack [-] when checking a tracking id's outflow against its inflow
 (the stockpile splits a bin into particles; float sums differ in the last bits)."""
 
+
+FLOW_WINDOW_S = 10.0
+"""Plant time [s] over which the belt scales average the mass flow."""
 
 SETPOINT_CHANGES_KEPT = 64
 """How many of the latest setpoint changes the plant publishes (with the plant
@@ -192,6 +196,11 @@ class PlantProcess:
         # kg, grade)]); ``revision`` counts every change but the clock's
         self.journal: list[tuple] = []
         self.revision = 0
+        # (plant time [s], mass [kg]) discharged onto SP201 / loaded onto CV301 in the
+        # last FLOW_WINDOW_S: the belt scales' flow rates (not persisted: a restarted
+        # server's flows start from its restart)
+        self._cv101_flow: deque[tuple[float, float]] = deque()
+        self._cv301_flow: deque[tuple[float, float]] = deque()
 
     # -------------------------------------------------------------- feeding
     def _lot_at(self, t: float) -> dict:
@@ -245,6 +254,7 @@ class PlantProcess:
                                head["grade"], head["hardness"], head["source"], t)
         self.pending.append(record)
         self.journal.append(("inbound", record))
+        self._cv101_flow.append((t, record.mass_kg))
         self.entered_mass[record.tracking_id] = record.mass_kg
         self.source_of[record.tracking_id] = record.source
         return record
@@ -374,6 +384,7 @@ class PlantProcess:
         self.outflow_log.append({"time_s": self.time, "sequence": sequence,
                                  "mass_kg": float(mass.sum()),
                                  "by_source": self._by_source(tids, mass)})
+        self._cv301_flow.append((self.time, float(mass.sum())))
         self.journal.append(("report", sequence, digest, self.outflow_log[-1],
                              [(tid, self.left_mass[tid], self._grades[tid])
                               for tid in tids.tolist()]))
@@ -413,6 +424,25 @@ class PlantProcess:
                                   f"in [0, {top:g}] m/s", f"got {speed!r}")
         getattr(self, belt).speed_m_s = speed
         self.revision += 1
+
+    @property
+    def mass_in_kg(self) -> float:
+        """Total mass discharged onto SP201 [kg]."""
+        return float(sum(self.entered_mass.values()))
+
+    @property
+    def mass_out_kg(self) -> float:
+        """Total mass reported out of SP201 onto CV301 [kg]."""
+        return float(sum(self.left_mass.values()))
+
+    def mass_flow(self, belt: str) -> float:
+        """Mass flow [kg/s] over the last ``FLOW_WINDOW_S`` of plant time: discharged
+        from CV101 onto SP201 (``"cv101"``) or loaded onto CV301 (``"cv301"``)."""
+        flow = self._cv101_flow if belt == "cv101" else self._cv301_flow
+        while flow and flow[0][0] <= self.time - FLOW_WINDOW_S:
+            flow.popleft()
+        window = min(FLOW_WINDOW_S, self.time)
+        return sum(m for _, m in flow) / window if window > 0 else 0.0
 
     # ----------------------------------------------------------- persistence
     def state(self) -> dict:
@@ -472,8 +502,7 @@ class PlantProcess:
             "outbound_sequence": self.outbound_sequence,
             "duplicate_reports_ignored": self.duplicate_reports,
             "bins_out": self.bins_out + (1 if self.loading_contents else 0),
-            "mass_in_kg": float(sum(self.entered_mass.values())),
-            "mass_out_kg": float(sum(self.left_mass.values())),
+            "mass_in_kg": self.mass_in_kg, "mass_out_kg": self.mass_out_kg,
             "delivered_mass_kg": self.delivered_mass_kg,
             "delivered_by_source": {str(k): v for k, v in self.delivered_by_source.items()},
             "entered": {str(k): v for k, v in self.entered_mass.items()},

@@ -25,6 +25,7 @@ argument, and the last refusal's message is readable at
 from __future__ import annotations
 
 import asyncio
+import copy
 import json
 import logging
 import math
@@ -33,7 +34,7 @@ import sys
 import time
 import uuid
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +45,7 @@ from asyncua.crypto.security_policies import SecurityPolicyNone
 from asyncua.crypto.truststore import TrustStore
 from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 from asyncua.server.address_space import AttributeService
+from asyncua.server.history_sql import HistorySQLite
 
 from opcua_server import sessions
 from opcua_server.ledger_store import LedgerStore
@@ -66,6 +68,31 @@ EVENT_FIELDS = (("Sequence", ua.VariantType.UInt64), ("TrackingId", ua.VariantTy
                 ("Hardness", ua.VariantType.Double), ("Source", ua.VariantType.Int32),
                 ("DischargeTime", ua.VariantType.Double))
 """Properties of ``BinDischargedEventType`` (mass kg, time s)."""
+
+
+HISTORIZED = ("Plant.SP201.DischargeRateSetpoint", "Plant.SP201.HeldMass",
+              "Plant.SP201.AverageGrade", "Plant.CV101.MassFlow", "Plant.CV101.Totalizer",
+              "Plant.CV301.MassFlow", "Plant.CV301.Totalizer")
+"""Variables whose history HistoryRead serves (and SP201's BinDischargedEventType events)."""
+HISTORY_PERIOD = timedelta(hours=6)
+"""How far back the history is kept (wall-clock time)."""
+
+
+class _History(HistorySQLite):
+    """asyncua's SQLite history with table names it accepts for our string node ids
+    (it quotes the id, and its own table-name check then refuses the quote), and
+    event retention that works."""
+
+    def _get_table_name(self, node_id: ua.NodeId) -> str:
+        name = f"{node_id.NamespaceIndex}_{node_id.Identifier}"
+        return "".join(c if c.isalnum() else "_" for c in name)
+
+    async def save_event(self, event) -> None:
+        # the events asyncua's history subscription decodes say the Server emitted
+        # them (its default), and asyncua then looks their retention period up
+        # under that node and fails after storing them: the source is the emitter
+        event.emitting_node = event.SourceNode
+        await super().save_event(event)
 
 
 @dataclass
@@ -214,6 +241,7 @@ class PlantServer:
         self._published_setpoint = self.process.discharge_rate_setpoint
         self._published_change = self.process.setpoint_changes[-1]
         self.instance_id = str(uuid.uuid4())
+        self._flows_published_at = -math.inf
         srv = config["server"]
         self.host, self.port = srv["host"], int(srv["port"])
         self.state_dir = Path(srv["state_dir"])
@@ -282,6 +310,7 @@ class PlantServer:
         if not self.insecure:
             server._policies.insert(0, RefuseNoneChannel())
         await server.start()
+        await self._start_history()
         await self.publish()
 
     async def _build_address_space(self) -> None:
@@ -341,7 +370,11 @@ class PlantServer:
                 ("BinSources", [], I, "source index per bin (-1 = empty)", None, None, n1, None),
                 ("BinPositions", [], D, "bin centres from the loading point", "m", None, n1,
                  None),
-                ("Mass", 0.0, D, "mass on the belt", "kg", None, None, None)):
+                ("Mass", 0.0, D, "mass on the belt", "kg", None, None, None),
+                ("MassFlow", 0.0, D, "belt scale at the head: mass flow discharged onto SP201, "
+                 "averaged over the last 10 s", "kg/s", None, None, None),
+                ("Totalizer", 0.0, D, "belt scale at the head: total mass discharged onto SP201",
+                 "kg", None, None, None)):
             name, value, vtype, text, unit, eu_range, dims, writable = row
             await var(cv101, f"Plant.CV101.{name}", value, vtype, text, unit=unit,
                       eu_range=eu_range, dims=dims, writable=writable)
@@ -430,7 +463,11 @@ class PlantServer:
                 ("Grade", 0.0, D, "average ore grade (mass fraction) on the belt", "1",
                  (0.0, 1.0), None, None),
                 ("DeliveredMass", 0.0, D, "mass delivered at the end of the belt", "kg", None,
-                 None, None)):
+                 None, None),
+                ("MassFlow", 0.0, D, "belt scale at the loading point: mass flow loaded from "
+                 "SP201, averaged over the last 10 s", "kg/s", None, None, None),
+                ("Totalizer", 0.0, D, "belt scale at the loading point: total mass loaded from "
+                 "SP201", "kg", None, None, None)):
             name, value, vtype, text, unit, eu_range, dims, writable = row
             await var(cv301, f"Plant.CV301.{name}", value, vtype, text, unit=unit,
                       eu_range=eu_range, dims=dims, writable=writable)
@@ -462,6 +499,19 @@ class PlantServer:
             "surrogate": {self._ack_node.nodeid, self._report_node.nodeid, self._advance_node.nodeid,
                           *refresh},
             "operator": set(refresh), "viewer": set(refresh)}
+
+    async def _start_history(self) -> None:
+        """HistoryRead of the setpoint, the stockpile's reported values, the belt
+        scales and the bin events, kept ``HISTORY_PERIOD`` in
+        ``STATE/history.sqlite`` (asyncua's SQLite history, in WAL mode)."""
+        history = _History(str(self.state_dir / "history.sqlite"))
+        await history.init()
+        await history._db.execute("PRAGMA journal_mode=WAL")
+        await history._db.execute("PRAGMA synchronous=NORMAL")
+        self.server.iserver.history_manager.set_storage(history)
+        await self.server.historize_node_data_change(
+            [self.server.get_node(self.nid(name)) for name in HISTORIZED], period=HISTORY_PERIOD)
+        await self.server.historize_node_event(self.sp201_node, period=HISTORY_PERIOD)
 
     async def _add_variable(self, parent, nodeid, name, value, vtype, description, unit,
                             eu_range, dims):
@@ -545,6 +595,12 @@ class PlantServer:
         await w("Plant.CV301.Mass", total, D)
         await w("Plant.CV301.Grade", float(c.mass @ c.grade / total) if total > 0 else 0.0, D)
         await w("Plant.CV301.DeliveredMass", p.delivered_mass_kg, D)
+        now = time.monotonic()
+        if self.lockstep or now - self._flows_published_at >= 1.0:  # 10 s averages: 1/s
+            self._flows_published_at = now
+            for belt, totalizer in (("cv101", p.mass_in_kg), ("cv301", p.mass_out_kg)):
+                await w(f"Plant.{belt.upper()}.MassFlow", p.mass_flow(belt), D)
+                await w(f"Plant.{belt.upper()}.Totalizer", totalizer, D)
 
     async def publish_setpoint_changes(self) -> None:
         changes, D = self.process.setpoint_changes, ua.VariantType.Double
@@ -604,11 +660,10 @@ class PlantServer:
             ev.event.Source = ua.Variant(r.source, ua.VariantType.Int32)
             ev.event.DischargeTime = r.time_s
             await ev.trigger(message=f"bin {r.tracking_id} discharged onto SP201 (seq {r.sequence})")
-            emitter = ev.event.emitting_node
             for notifier in self._notifiers:  # the same event, up the notifier chain
-                ev.event.emitting_node = notifier
-                await self.server.iserver.subscription_service.trigger_event(ev.event)
-            ev.event.emitting_node = emitter
+                event = copy.copy(ev.event)  # a copy: the history records SP201's asynchronously
+                event.emitting_node = notifier
+                await self.server.iserver.subscription_service.trigger_event(event)
 
     async def run(self) -> None:
         """Serve until ``stop()``; advance in real time unless in lockstep."""

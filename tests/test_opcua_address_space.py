@@ -151,3 +151,24 @@ def test_bin_events_reach_a_generic_client_subscribed_to_the_server_object(plant
     received = Events.received
     assert len(received) >= 15  # CV101's first bin arrives after 20 s: ~1 bin per s
     assert received == list(range(received[0], received[0] + len(received)))
+
+
+def test_history_read_of_the_setpoint_the_belt_scales_and_the_bin_events(plant):
+    async def body(client, node):
+        for value in (310.0, 320.0):
+            await node("Plant.SP201.DischargeRateSetpoint").write_value(
+                ua.DataValue(ua.Variant(value, ua.VariantType.Double)))
+            await asyncio.sleep(0.2)
+        start, end = datetime.now(timezone.utc) - timedelta(hours=1), \
+            datetime.now(timezone.utc) + timedelta(minutes=1)
+        setpoints = await node("Plant.SP201.DischargeRateSetpoint").read_raw_history(start, end)
+        flows = await node("Plant.CV101.Totalizer").read_raw_history(start, end)
+        events = await node("Plant.SP201").read_event_history(
+            start, end, evtypes=[node("BinDischargedEventType")])
+        return [v.Value.Value for v in setpoints], [v.Value.Value for v in flows], events
+
+    setpoints, totals, events = _run(plant, "operator", body)
+    assert setpoints[-2:] == [310.0, 320.0]
+    assert totals and totals == sorted(totals) and totals[-1] > 0  # the earlier tests' bins
+    assert len(events) >= 15
+    assert [int(e.Sequence) for e in events] == sorted(int(e.Sequence) for e in events)

@@ -133,10 +133,11 @@ async function main() {
 
   // 7. access attributes as each role sees them
   const access = async (session) => ({
+    // CurrentRead | CurrentWrite bits (HistoryRead is set where history is kept)
     setpoint: (await session.read({ nodeId: id("Plant.SP201.DischargeRateSetpoint"),
-      attributeId: AttributeIds.UserAccessLevel })).value.value,
+      attributeId: AttributeIds.UserAccessLevel })).value.value & 3,
     held_mass: (await session.read({ nodeId: id("Plant.SP201.HeldMass"),
-      attributeId: AttributeIds.UserAccessLevel })).value.value,
+      attributeId: AttributeIds.UserAccessLevel })).value.value & 3,
     report_executable: (await session.read({ nodeId: id("Plant.SP201.Outbound.ReportOutflow"),
       attributeId: AttributeIds.UserExecutable })).value.value,
   });
