@@ -31,13 +31,17 @@ def free_port() -> int:
 
 
 def prepare_state(root: Path) -> dict:
-    """Users with fresh random passwords, a trusted client certificate.
+    """Users with fresh random passwords, a trusted client certificate, no ledger
+    and no history.
 
     Returns ``{"server_state", "client_state", "passwords": {role: pw},
     "client_cert", "client_key", "password_files": {role: path}}``.
     """
     root = Path(root)
     server_state, client_state = root / "server", root / "client"
+    for stem in ("ledger", "history"):
+        for suffix in (".sqlite", ".sqlite-wal", ".sqlite-shm"):
+            (server_state / f"{stem}{suffix}").unlink(missing_ok=True)  # a new run: a new plant
     passwords = {role: secrets.token_urlsafe(12) for role in ROLES}
     write_users(server_state / "users.toml", {r: (r, pw) for r, pw in passwords.items()})
     files = {}
@@ -98,11 +102,17 @@ class ManagedProcess:
 
 
 class ServerProcess(ManagedProcess):
-    """``minetwin serve-800xa`` on 127.0.0.1 and a free port."""
+    """``minetwin serve-800xa`` on 127.0.0.1 and a free port.
+
+    ``until``: the server's clock freezes at that simulation time (``--until``);
+    ``clock_frozen()`` tells when it has.
+    """
 
     def __init__(self, workdir: Path, state: dict, *, speed: float = 1.0, lockstep: bool = False,
-                 insecure: bool = False, config: Path | None = None, port: int | None = None):
+                 insecure: bool = False, config: Path | None = None, port: int | None = None,
+                 until: float | None = None):
         workdir = Path(workdir)
+        self.state = state
         self.port = port or free_port()
         self.ledger = workdir / "ledger.json"
         ready = workdir / "server.ready"
@@ -113,8 +123,19 @@ class ServerProcess(ManagedProcess):
         args += ["--lockstep"] if lockstep else []
         args += ["--insecure"] if insecure else []
         args += ["--config", str(config)] if config else []
+        args += ["--until", str(until)] if until is not None else []
         super().__init__(args, workdir / "server.log")
         self.url = self.wait_for_file(ready).strip()
+
+
+    def clock_frozen(self) -> bool:
+        """True once the server has frozen its clock and written the ledger."""
+        import json
+
+        try:
+            return bool(json.loads(self.ledger.read_text()).get("paused"))
+        except (OSError, ValueError):
+            return False
 
 
 class StockpileProcess(ManagedProcess):
@@ -154,39 +175,64 @@ def drain_and_stop(server: ServerProcess, stockpile: StockpileProcess | None,
                    timeout: float = 30.0) -> tuple[dict, dict | None]:
     """Freeze the server's clock, let the stockpile catch up, stop both.
 
-    Returns ``(ledger, summary)``; the stockpile has applied every record and
-    sent every report when the server's pending list is empty and its
-    acknowledged number equals the last sequence number.
+    Returns ``(ledger, summary)``. The stockpile has caught up when its time
+    (REST ``/totals``) reached the frozen clock and the server then saw two
+    more of its heartbeats (a whole exchange cycle after it: reports sent,
+    records acknowledged). ``timeout`` [s of wall time] bounds each wait
+    *without progress*: a stockpile that lags far behind (a loaded machine)
+    is waited for as long as its time keeps moving.
     """
     import json
+    import urllib.request
 
     server.proc.send_signal(signal.SIGUSR1)
     end = time.monotonic() + timeout
     ledger = {}
     while time.monotonic() < end:
         time.sleep(0.3)
-        if server.ledger.exists():
+        if server.clock_frozen():
             ledger = json.loads(server.ledger.read_text())
-            if ledger.get("paused"):
-                break
+            break
     target = ledger.get("time_s", 0.0)
     summary = None
     if stockpile is not None:
-        import urllib.request
-
-        while stockpile.rest_url and time.monotonic() < end:
+        def stockpile_time():
             try:
                 with urllib.request.urlopen(stockpile.rest_url + "/totals", timeout=2) as resp:
-                    if json.loads(resp.read())["time_s"] >= target - 1e-9:
-                        break
-            except OSError:
-                pass
+                    return json.loads(resp.read())["time_s"]
+            except (OSError, ValueError, KeyError):
+                return None
+
+        last, stalled_since = None, time.monotonic()
+        while stockpile.rest_url and time.monotonic() - stalled_since < timeout:
+            now = stockpile_time()
+            if now is not None and now >= target - 1e-9:
+                break
+            if now is not None and (last is None or now > last):
+                last, stalled_since = now, time.monotonic()
             time.sleep(0.2)
-        time.sleep(1.0)  # one more exchange cycle: reports sent, records acknowledged
+        if server.state is not None:
+            asyncio.run(_two_more_heartbeats(server, timeout))
+        else:
+            time.sleep(1.0)
         stockpile.stop()
         summary = json.loads(stockpile.summary.read_text())
     server.stop()
     return json.loads(server.ledger.read_text()), summary
+
+
+async def _two_more_heartbeats(server: ServerProcess, timeout: float) -> None:
+    from asyncua import ua
+
+    client = await connect(server.url, server.state, "viewer")
+    try:
+        idx = await client.get_namespace_index("urn:minetwin:mock800xa")
+        heartbeat = client.get_node(ua.NodeId("Plant.SP201.Heartbeat", idx))
+        first, end = await heartbeat.read_value(), time.monotonic() + timeout
+        while await heartbeat.read_value() < first + 2 and time.monotonic() < end:
+            await asyncio.sleep(0.1)
+    finally:
+        await client.disconnect()
 
 
 async def connect(url: str, state: dict, role: str, *, password: str | None = None,

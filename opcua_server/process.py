@@ -34,6 +34,8 @@ Parameters come from the configuration (``opcua_server.config``); units SI.
 
 from __future__ import annotations
 
+import hashlib
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,6 +45,27 @@ from cosim.errors import ValidationError
 MASS_TOLERANCE = 1e-9
 """Relative slack [-] when checking a tracking id's outflow against its inflow
 (the stockpile splits a bin into particles; float sums differ in the last bits)."""
+
+
+FLOW_WINDOW_S = 10.0
+"""Plant time [s] over which the belt scales average the mass flow."""
+
+SETPOINT_CHANGES_KEPT = 64
+"""How many of the latest setpoint changes the plant publishes (with the plant
+time each took effect), enough for a client many cycles behind."""
+
+MAX_REPORT_ROWS = 10_000
+"""Most tracking ids [-] in one outflow report; the stockpile reports one cycle's
+outflow (a few particles per tracking id), far below this."""
+
+
+def report_digest(tracking_ids: np.ndarray, masses: np.ndarray, grades: np.ndarray) -> str:
+    """SHA-256 of an outflow report's contents (tells a resend from a conflict)."""
+    digest = hashlib.sha256()
+    for arr, dtype in ((tracking_ids, "<u8"), (masses, "<f8"), (grades, "<f8")):
+        digest.update(np.ascontiguousarray(arr, dtype=dtype).tobytes())
+        digest.update(b"|")
+    return digest.hexdigest()
 
 
 class ExchangeRefused(Exception):
@@ -81,6 +104,22 @@ class Belt:
         self.grade = np.zeros(self.n_bins)
         self.hardness = np.zeros(self.n_bins)
         self.source = np.full(self.n_bins, -1, dtype=np.int32)
+
+    def state(self) -> dict:
+        """The belt as plain JSON data (``restore`` takes it back)."""
+        return {"offset_m": self.offset_m, "speed_m_s": self.speed_m_s,
+                "tracking_id": self.tracking_id.tolist(), "mass": self.mass.tolist(),
+                "grade": self.grade.tolist(), "hardness": self.hardness.tolist(),
+                "source": self.source.tolist()}
+
+    def restore(self, state: dict) -> None:
+        if len(state["mass"]) != self.n_bins:
+            raise ValidationError("ledger", f"a belt of {self.n_bins} bins (the configuration's)",
+                                  f"the stored belt has {len(state['mass'])}")
+        self.offset_m, self.speed_m_s = float(state["offset_m"]), float(state["speed_m_s"])
+        self.tracking_id[:] = np.array(state["tracking_id"], dtype=np.uint64)
+        self.mass[:], self.grade[:] = state["mass"], state["grade"]
+        self.hardness[:], self.source[:] = state["hardness"], state["source"]
 
     def positions(self) -> np.ndarray:
         """Centre of each bin [m] from the loading point."""
@@ -126,6 +165,9 @@ class PlantProcess:
         self._scheduled_rate = float(sp["discharge_rate_kg_s"])
         self._discharge_start = float(sp.get("discharge_start_s", 0.0))
         self.discharge_rate_setpoint = self._scheduled_rate if self._discharge_start <= 0 else 0.0
+        # (plant time it took effect [s], setpoint [kg/s]): a client that lags
+        # behind the plant applies each setpoint from its own time, not late
+        self.setpoint_changes: list[tuple[float, float]] = [(0.0, self.discharge_rate_setpoint)]
         self.lots = config["feed"]["lots"]
         self._lot_ends = np.cumsum([float(lot["duration_s"]) for lot in self.lots])
         self.next_tracking_id = int(config["feed"]["first_tracking_id"])
@@ -141,12 +183,24 @@ class PlantProcess:
         self.left_mass: dict[int, float] = {}
         self._grades: dict[int, float] = {}
         self.duplicate_reports = 0
+        self.report_digests: dict[int, str] = {}
         self.loading_contents: dict[int, float] = {}
         self.cv301_contents: list[dict[int, float]] = [dict() for _ in range(self.cv301.n_bins)]
+        self.cv301_contents[0] = self.loading_contents
         self.bins_out = 0
         self.delivered_mass_kg = 0.0
         self.delivered_by_source: dict[int, float] = {}
         self.outflow_log: list[dict] = []
+        # what changed since the ledger store last saved (``opcua_server.ledger_store``):
+        # ("inbound", InboundRecord) and ("report", sequence, digest, log row, [(tid, left
+        # kg, grade)]); ``revision`` counts every change but the clock's
+        self.journal: list[tuple] = []
+        self.revision = 0
+        # (plant time [s], mass [kg]) discharged onto SP201 / loaded onto CV301 in the
+        # last FLOW_WINDOW_S: the belt scales' flow rates (not persisted: a restarted
+        # server's flows start from its restart)
+        self._cv101_flow: deque[tuple[float, float]] = deque()
+        self._cv301_flow: deque[tuple[float, float]] = deque()
 
     # -------------------------------------------------------------- feeding
     def _lot_at(self, t: float) -> dict:
@@ -182,11 +236,15 @@ class PlantProcess:
             self._load_cv101(t_shift)
             if head["mass"] > 0:
                 new.append(self._discharge(head, t_shift))
-        for _ in range(self.cv301.shifts(dt)):
+        shifts = self.cv301.shifts(dt)
+        for _ in range(shifts):
             self._shift_cv301()
+        if shifts or new or belt.offset_m < offset:
+            self.revision += 1
         self.time += dt
         if 0 < self._discharge_start <= self.time:
             self.discharge_rate_setpoint = self._scheduled_rate
+            self._record_setpoint(self._discharge_start)
             self._discharge_start = 0.0
         return new
 
@@ -195,6 +253,8 @@ class PlantProcess:
         record = InboundRecord(self.last_sequence, head["tracking_id"], head["mass"],
                                head["grade"], head["hardness"], head["source"], t)
         self.pending.append(record)
+        self.journal.append(("inbound", record))
+        self._cv101_flow.append((t, record.mass_kg))
         self.entered_mass[record.tracking_id] = record.mass_kg
         self.source_of[record.tracking_id] = record.source
         return record
@@ -207,10 +267,13 @@ class PlantProcess:
             self.delivered_by_source[source] = self.delivered_by_source.get(source, 0.0) + mass
             self.delivered_mass_kg += mass
         belt.shift()
-        self.cv301_contents = [self.loading_contents] + self.cv301_contents[:-1]
         if self.loading_contents:
             self.bins_out += 1
+        # slot 0 is always the loading bin: the loaded one moves on to slot 1
+        # (before, it stayed in slot 0 as well and, without an outflow report
+        # before the next shift, was carried, and delivered, twice)
         self.loading_contents = {}
+        self.cv301_contents = [self.loading_contents] + self.cv301_contents[:-1]
         self._refresh_cv301_slot(0)
 
     def _refresh_cv301_slot(self, slot: int) -> None:
@@ -231,6 +294,7 @@ class PlantProcess:
                                   f"got {sequence}")
         if sequence > self.acknowledged_sequence:
             self.acknowledged_sequence = sequence
+            self.revision += 1
             self.pending = [r for r in self.pending if r.sequence > sequence]
         return self.acknowledged_sequence
 
@@ -251,23 +315,34 @@ class PlantProcess:
     def report_outflow(self, sequence: int, tracking_ids, masses, grades) -> str:
         """Apply one outflow report once; return "applied" or "already applied".
 
-        Refused (``ExchangeRefused``, nothing changed): a gap in the
-        sequence, arrays of different lengths, a repeated tracking id,
+        Refused (``ExchangeRefused``, nothing changed): sequence 0, a gap
+        in the sequence, an applied number with other contents (a replay
+        that is a conflict), more than ``MAX_REPORT_ROWS`` tracking ids, arrays of different lengths, a repeated tracking id,
         masses not finite and > 0, grades outside [0, 1], a tracking id that
         never entered the stockpile, or more mass of a tracking id than
         entered.
         """
         sequence = int(sequence)
+        tids = np.asarray(tracking_ids, dtype=np.uint64).ravel()
+        mass = np.asarray(masses, dtype=np.float64).ravel()
+        grade = np.asarray(grades, dtype=np.float64).ravel()
+        if tids.size > MAX_REPORT_ROWS:
+            raise ExchangeRefused("BadTooManyOperations", "tracking_ids",
+                                  f"at most {MAX_REPORT_ROWS} per report", f"got {tids.size}")
+        if sequence < 1:
+            raise ExchangeRefused("BadSequenceNumberInvalid", "sequence", ">= 1", "got 0")
+        digest = report_digest(tids, mass, grade)
         if sequence <= self.outbound_sequence:
+            if self.report_digests.get(sequence) != digest:
+                raise ExchangeRefused("BadSequenceNumberInvalid", "sequence",
+                                      "a new number for a new report",
+                                      f"report {sequence} was applied with other contents")
             self.duplicate_reports += 1
             return "already applied"
         if sequence != self.outbound_sequence + 1:
             raise ExchangeRefused("BadSequenceNumberInvalid", "sequence",
                                   f"{self.outbound_sequence + 1} (the next outflow number)",
                                   f"got {sequence}")
-        tids = np.asarray(tracking_ids, dtype=np.uint64).ravel()
-        mass = np.asarray(masses, dtype=np.float64).ravel()
-        grade = np.asarray(grades, dtype=np.float64).ravel()
         for name, arr in (("masses", mass), ("grades", grade)):
             if arr.size != tids.size:
                 raise ExchangeRefused("BadInvalidArgument", name,
@@ -280,12 +355,12 @@ class PlantProcess:
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
             raise ExchangeRefused("BadOutOfRange", "masses", "finite and > 0 kg",
-                                  f"got {mass[k]!r} at index {k}")
+                                  f"got {float(mass[k])} at index {k}")
         bad = ~np.isfinite(grade) | (grade < 0) | (grade > 1)
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
             raise ExchangeRefused("BadOutOfRange", "grades", "in [0, 1]",
-                                  f"got {grade[k]!r} at index {k}")
+                                  f"got {float(grade[k])} at index {k}")
         for k, tid in enumerate(tids.tolist()):
             entered = self.entered_mass.get(tid)
             if entered is None:
@@ -299,6 +374,7 @@ class PlantProcess:
                                       f"{total:.9g} kg would have left in total")
         # accepted: apply
         self.outbound_sequence = sequence
+        self.report_digests[sequence] = digest
         for tid, m, g in zip(tids.tolist(), mass.tolist(), grade.tolist()):
             self.left_mass[tid] = self.left_mass.get(tid, 0.0) + m
             self.loading_contents[tid] = self.loading_contents.get(tid, 0.0) + m
@@ -308,6 +384,11 @@ class PlantProcess:
         self.outflow_log.append({"time_s": self.time, "sequence": sequence,
                                  "mass_kg": float(mass.sum()),
                                  "by_source": self._by_source(tids, mass)})
+        self._cv301_flow.append((self.time, float(mass.sum())))
+        self.journal.append(("report", sequence, digest, self.outflow_log[-1],
+                             [(tid, self.left_mass[tid], self._grades[tid])
+                              for tid in tids.tolist()]))
+        self.revision += 1
         return "applied"
 
     def _by_source(self, tids: np.ndarray, mass: np.ndarray) -> dict[str, float]:
@@ -326,6 +407,13 @@ class PlantProcess:
                                   f"in [0, {self.max_discharge_rate:g}] kg/s", f"got {rate!r}")
         self.discharge_rate_setpoint = rate
         self._discharge_start = 0.0  # the operator's setpoint stands
+        self._record_setpoint(self.time)
+        self.revision += 1
+
+    def _record_setpoint(self, effective_s: float) -> None:
+        changes = self.setpoint_changes
+        changes.append((float(effective_s), self.discharge_rate_setpoint))
+        del changes[:-SETPOINT_CHANGES_KEPT]
 
     def set_belt_speed(self, belt: str, speed: float) -> None:
         """Belt speed [m/s] of ``cv101`` or ``cv301`` in [0, max]."""
@@ -335,6 +423,73 @@ class PlantProcess:
             raise ExchangeRefused("BadOutOfRange", f"{belt.upper()}.BeltSpeed",
                                   f"in [0, {top:g}] m/s", f"got {speed!r}")
         getattr(self, belt).speed_m_s = speed
+        self.revision += 1
+
+    @property
+    def mass_in_kg(self) -> float:
+        """Total mass discharged onto SP201 [kg]."""
+        return float(sum(self.entered_mass.values()))
+
+    @property
+    def mass_out_kg(self) -> float:
+        """Total mass reported out of SP201 onto CV301 [kg]."""
+        return float(sum(self.left_mass.values()))
+
+    def mass_flow(self, belt: str) -> float:
+        """Mass flow [kg/s] over the last ``FLOW_WINDOW_S`` of plant time: discharged
+        from CV101 onto SP201 (``"cv101"``) or loaded onto CV301 (``"cv301"``)."""
+        flow = self._cv101_flow if belt == "cv101" else self._cv301_flow
+        while flow and flow[0][0] <= self.time - FLOW_WINDOW_S:
+            flow.popleft()
+        window = min(FLOW_WINDOW_S, self.time)
+        return sum(m for _, m in flow) / window if window > 0 else 0.0
+
+    # ----------------------------------------------------------- persistence
+    def state(self) -> dict:
+        """Everything but the per-tracking-id and per-record tables, as JSON data
+        (the ledger store keeps those as rows, from ``journal``)."""
+        return {
+            "time": self.time, "next_tracking_id": self.next_tracking_id,
+            "last_sequence": self.last_sequence, "acknowledged_sequence": self.acknowledged_sequence,
+            "outbound_sequence": self.outbound_sequence, "duplicate_reports": self.duplicate_reports,
+            "discharge_rate_setpoint": self.discharge_rate_setpoint,
+            "discharge_start": self._discharge_start,
+            "setpoint_changes": [list(c) for c in self.setpoint_changes],
+            "cv101": self.cv101.state(), "cv301": self.cv301.state(),
+            "cv301_contents": [list(c.items()) for c in self.cv301_contents],
+            "bins_out": self.bins_out, "delivered_mass_kg": self.delivered_mass_kg,
+            "delivered_by_source": list(self.delivered_by_source.items()),
+        }
+
+    def restore(self, state: dict, inbound: list[InboundRecord], bins: list[tuple],
+                reports: list[tuple]) -> None:
+        """Back to a saved state: ``state()``'s dict, the inbound records not yet
+        acknowledged, ``(tracking_id, entered kg, source, left kg, grade)`` per
+        bin and ``(sequence, digest, log row)`` per applied outflow report."""
+        self.time = float(state["time"])
+        self.next_tracking_id = int(state["next_tracking_id"])
+        self.last_sequence = int(state["last_sequence"])
+        self.acknowledged_sequence = int(state["acknowledged_sequence"])
+        self.outbound_sequence = int(state["outbound_sequence"])
+        self.duplicate_reports = int(state["duplicate_reports"])
+        self.discharge_rate_setpoint = float(state["discharge_rate_setpoint"])
+        self._discharge_start = float(state["discharge_start"])
+        self.setpoint_changes = [tuple(c) for c in state["setpoint_changes"]]
+        self.cv101.restore(state["cv101"])
+        self.cv301.restore(state["cv301"])
+        self.cv301_contents = [{int(t): m for t, m in slot} for slot in state["cv301_contents"]]
+        self.loading_contents = self.cv301_contents[0]
+        self.bins_out = int(state["bins_out"])
+        self.delivered_mass_kg = float(state["delivered_mass_kg"])
+        self.delivered_by_source = {int(k): v for k, v in state["delivered_by_source"]}
+        self.pending = sorted(inbound, key=lambda r: r.sequence)
+        self.entered_mass = {tid: m for tid, m, _, _, _ in bins}
+        self.source_of = {tid: src for tid, _, src, _, _ in bins}
+        self.left_mass = {tid: left for tid, _, _, left, _ in bins if left > 0}
+        self._grades = {tid: g for tid, _, _, left, g in bins if left > 0}
+        self.report_digests = {seq: digest for seq, digest, _ in reports}
+        self.outflow_log = [row for _, _, row in sorted(reports, key=lambda r: r[0])]
+        self.journal = []
 
     # ---------------------------------------------------------------- ledger
     def ledger(self) -> dict:
@@ -347,8 +502,7 @@ class PlantProcess:
             "outbound_sequence": self.outbound_sequence,
             "duplicate_reports_ignored": self.duplicate_reports,
             "bins_out": self.bins_out + (1 if self.loading_contents else 0),
-            "mass_in_kg": float(sum(self.entered_mass.values())),
-            "mass_out_kg": float(sum(self.left_mass.values())),
+            "mass_in_kg": self.mass_in_kg, "mass_out_kg": self.mass_out_kg,
             "delivered_mass_kg": self.delivered_mass_kg,
             "delivered_by_source": {str(k): v for k, v in self.delivered_by_source.items()},
             "entered": {str(k): v for k, v in self.entered_mass.items()},

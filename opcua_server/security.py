@@ -25,6 +25,7 @@ import os
 import secrets
 import shutil
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
 
 from asyncua import ua
@@ -117,12 +118,19 @@ class PlantUser(User):
 
 
 class PlantUserManager:
-    """Username/password check against hashed passwords; no anonymous, no admin."""
+    """Username/password check against hashed passwords; no anonymous, no admin.
+
+    ``check`` does the scrypt work (the session processor runs it in an
+    executor, off the event loop) and leaves its verdict in ``verdicts``;
+    asyncua's ``get_user``, called inside the event loop, takes that verdict
+    and hashes only when there is none (a password never checked before).
+    """
 
     def __init__(self, users: dict[str, dict]):
         self.users = users
+        self.verdicts: dict[tuple, PlantUser | None] = {}
 
-    def get_user(self, iserver, username=None, password=None, certificate=None):
+    def check(self, username, password) -> PlantUser | None:
         entry = self.users.get(username or "")
         if entry is None or password is None:
             return None
@@ -131,6 +139,12 @@ class PlantUserManager:
         if not verify_password(password, entry["password_hash"]):
             return None
         return PlantUser(role=UserRole.User, name=username, plant_role=entry["role"])
+
+    def get_user(self, iserver, username=None, password=None, certificate=None):
+        key = (username, password)
+        if key in self.verdicts:
+            return self.verdicts.pop(key)
+        return self.check(username, password)
 
 
 _WRITE = ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary)
@@ -175,20 +189,52 @@ def pki_paths(state_dir: Path) -> dict[str, Path]:
             "cert": pki / "own" / "cert.der", "key": pki / "own" / "key.pem"}
 
 
+SERVER_IP_ADDRESSES = ("127.0.0.1",)
+"""IP addresses in the server certificate's subjectAltName (the endpoint's host)."""
+
+
 async def ensure_certificate(key_file: Path, cert_file: Path, app_uri: str, client: bool) -> bool:
-    """Generate a self-signed key and certificate if missing; True if generated."""
-    from asyncua.crypto.cert_gen import setup_self_signed_certificate
+    """Generate a self-signed key and certificate if missing; True if generated.
+
+    subjectAltName: the application URI, DNS ``localhost`` and, for the
+    server, IP ``127.0.0.1`` (the address its endpoint advertises). An expired
+    certificate, or a server certificate without that IP (made by an earlier
+    version), is replaced (same key).
+    """
+    import ipaddress
+
+    from asyncua.crypto.cert_gen import (dump_private_key_as_pem, generate_private_key,
+                                         generate_self_signed_app_certificate)
+    from cryptography import x509
+    from cryptography.hazmat.primitives.serialization import Encoding, load_pem_private_key
     from cryptography.x509.oid import ExtendedKeyUsageOID
 
-    existed = key_file.exists() and cert_file.exists()
-    key_file.parent.mkdir(parents=True, exist_ok=True)
+    ips = [] if client else [ipaddress.ip_address(a) for a in SERVER_IP_ADDRESSES]
+    if key_file.exists() and cert_file.exists():
+        cert = x509.load_der_x509_certificate(cert_file.read_bytes())
+        try:
+            names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+            has_ips = set(ips) <= set(names.get_values_for_type(x509.IPAddress))
+        except x509.ExtensionNotFound:
+            has_ips = False
+        expired = cert.not_valid_after_utc <= datetime.now(timezone.utc)
+        if has_ips and not expired:
+            return False
+        key = load_pem_private_key(key_file.read_bytes(), password=None)
+    else:
+        key_file.parent.mkdir(parents=True, exist_ok=True)
+        key = generate_private_key()
+        key_file.write_bytes(dump_private_key_as_pem(key))
+    os.chmod(key_file, 0o600)
     use = [ExtendedKeyUsageOID.CLIENT_AUTH] if client else [ExtendedKeyUsageOID.SERVER_AUTH,
                                                             ExtendedKeyUsageOID.CLIENT_AUTH]
-    await setup_self_signed_certificate(key_file, cert_file, app_uri, "localhost", use,
-                                        {"organizationName": "MineTwin",
-                                         "commonName": app_uri})
-    os.chmod(key_file, 0o600)
-    return not existed
+    alt_names = [x509.UniformResourceIdentifier(app_uri), x509.DNSName("localhost")]
+    alt_names += [x509.IPAddress(ip) for ip in ips]
+    cert = generate_self_signed_app_certificate(
+        key, app_uri, {"organizationName": "MineTwin", "commonName": app_uri}, alt_names,
+        extended=use, days=365)
+    cert_file.write_bytes(cert.public_bytes(encoding=Encoding.DER))
+    return True
 
 
 def trust_certificate(state_dir: Path, certificate: Path) -> Path:

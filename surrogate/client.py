@@ -32,11 +32,11 @@ and resynchronises from the pending list.
 from __future__ import annotations
 
 import asyncio
+import bisect
 import json
 import logging
 import math
 import os
-import pickle
 import sys
 import time
 from dataclasses import dataclass, field
@@ -45,11 +45,19 @@ from pathlib import Path
 import numpy as np
 
 from cosim.errors import ValidationError
+from surrogate.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from surrogate.stockpile import StockpileAsset
 
 log = logging.getLogger("surrogate.client")
 
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
+LAG_WARNING_S = 2.0
+"""Lag [s of plant time] behind the server above which the client says on
+stderr that it does not keep real time (at most every 10 s of wall time)."""
+
+
+class LedgerChanged(Exception):
+    """The server's ledger is not the one the stockpile's state was exchanged with."""
 
 
 @dataclass
@@ -77,6 +85,8 @@ class ClientOptions:
     node_map: Path | None = None
     rest_port: int | None = None
     rest_port_file: Path | None = None
+    cycle_budget_s: float = 1.0
+    """Wall time [s] one exchange cycle may spend stepping (not in lockstep)."""
     reconnect_s: float = 1.0
     timeout_s: float = 4.0
 
@@ -90,6 +100,7 @@ class ClientState:
     outflow_sequence: int = 0
     outbox: list = field(default_factory=list)
     heartbeat: int = 0
+    ledger_id: str | None = None  # the server ledger this state was exchanged with
     version: int = CHECKPOINT_VERSION
 
 
@@ -112,6 +123,11 @@ class StockpileClient:
         self.reconnects = 0
         self._stop = asyncio.Event()
         self.nodes: dict = {}
+        # [(plant time [s], setpoint [kg/s])] the plant published, oldest first;
+        # empty: the setpoint read in the cycle applies to the whole cycle
+        self.setpoint_changes: list[tuple[float, float]] = []
+        self._lag_warned_at = -math.inf
+        self.server_instance = None
 
     @property
     def asset(self) -> StockpileAsset:
@@ -122,11 +138,9 @@ class StockpileClient:
         path = self.o.checkpoint
         if path is None or not Path(path).exists():
             return None
-        with open(path, "rb") as handle:
-            state = pickle.load(handle)  # our own file, written by _checkpoint
-        if getattr(state, "version", None) != CHECKPOINT_VERSION:
-            raise ValidationError("checkpoint", f"a version {CHECKPOINT_VERSION} checkpoint",
-                                  f"{path} has another version")
+        state = load_checkpoint(path)  # data only: reading it runs no code from the file
+        if not isinstance(state, ClientState) or state.version != CHECKPOINT_VERSION:
+            raise CheckpointError(path, f"not a version {CHECKPOINT_VERSION} stockpile state")
         if state.asset.model_name != self.o.model:
             raise ValidationError("model", f"{state.asset.model_name!r} (the checkpoint's model)",
                                   f"got {self.o.model!r}")
@@ -136,15 +150,8 @@ class StockpileClient:
         return state
 
     def _checkpoint(self) -> None:
-        path = self.o.checkpoint
-        if path is None:
-            return
-        tmp = Path(f"{path}.tmp")
-        with open(tmp, "wb") as handle:
-            pickle.dump(self.state, handle, protocol=pickle.HIGHEST_PROTOCOL)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
+        if self.o.checkpoint is not None:
+            save_checkpoint(self.o.checkpoint, self.state)
 
     # ------------------------------------------------------------ exchange
     def _accept_records(self, records: list[dict]) -> None:
@@ -154,22 +161,40 @@ class StockpileClient:
                 self.inbox.setdefault(seq, r)
             self.known_sequence = max(self.known_sequence, seq)
 
-    def advance_to(self, target_time: float) -> dict | None:
+    def advance_to(self, target_time: float, budget_s: float | None = None) -> dict | None:
         """Step the asset to ``target_time`` applying inbound records in order;
-        return this cycle's outflow report (or None)."""
+        return this cycle's outflow report (or None).
+
+        ``budget_s`` [wall s]: stop stepping (short of ``target_time``) once
+        this much wall time is spent, so a client far behind catches up over
+        several cycles and keeps its session alive (the next cycle goes on).
+        """
         asset = self.asset
         started = time.perf_counter()
+        deadline = started + budget_s if budget_s is not None else math.inf
         outflow: dict[int, list[float]] = {}
+        changes = self.setpoint_changes
 
-        def step_to(t_end: float) -> None:
+        def step_to(t_end: float) -> bool:
+            """Step to ``t_end``; False if the wall-time budget ran out first."""
             while asset.time < t_end - 1e-12:
-                out = asset.step(min(self.o.dt_s, t_end - asset.time))
+                if time.perf_counter() > deadline:
+                    return False
+                dt = min(self.o.dt_s, t_end - asset.time)
+                if changes:  # the setpoint in force at the asset's own plant time
+                    k = max(bisect.bisect_right(changes, (asset.time + 1e-12, math.inf)) - 1, 0)
+                    asset.set_discharge_rate(changes[k][1])
+                    if k + 1 < len(changes):
+                        dt = min(dt, changes[k + 1][0] - asset.time)
+                out = asset.step(dt)
                 for tid, m, g in zip(out["tracking_ids"].tolist(), out["masses"].tolist(),
                                      out["grades"].tolist()):
                     acc = outflow.setdefault(tid, [0.0, 0.0])
                     acc[0] += m
                     acc[1] += m * g
+            return True
 
+        in_time = True
         while True:
             nxt = self.inbox.get(self.state.last_applied + 1)
             if nxt is None:
@@ -178,12 +203,14 @@ class StockpileClient:
                 break
             if nxt["time"] > target_time:
                 break
-            step_to(nxt["time"])
+            if not (in_time := step_to(nxt["time"])):
+                break
             asset.receive_bin(nxt["tracking_id"], nxt["mass"], nxt["grade"], nxt["hardness"],
                               nxt["source"])
             del self.inbox[nxt["sequence"]]
             self.state.last_applied = nxt["sequence"]
-        step_to(target_time)
+        if in_time:
+            step_to(target_time)
         self.step_times_ms.append((time.perf_counter() - started) * 1e3)
         if not outflow:
             return None
@@ -232,6 +259,32 @@ class StockpileClient:
                                           f"{name}: unknown namespace {uri!r}")
                 text = f"ns={namespaces.index(uri)};{rest}"
             self.nodes[name] = client.get_node(ua.NodeId.from_string(text))
+
+    async def _check_ledger(self) -> None:
+        """Go on only with the server ledger this state was exchanged with.
+
+        A server restarted without its ledger restarts its sequence numbers
+        and tracking ids: acknowledging or reporting against it would drop
+        or misapply bins, so the client stops and says why.
+        """
+        n = self.nodes
+        if "server_instance_id" in n:
+            instance = await n["server_instance_id"].read_value()
+            if self.server_instance not in (None, instance):
+                print(f"stockpile: the server restarted (instance {instance}); continuing on "
+                      f"its ledger", file=sys.stderr, flush=True)
+            self.server_instance = instance
+        if "ledger_id" not in n:
+            return
+        ledger = await n["ledger_id"].read_value()
+        if self.state.ledger_id is None:
+            self.state.ledger_id = ledger
+        elif ledger != self.state.ledger_id:
+            raise LedgerChanged(ValidationError(
+                "ledger", f"the server ledger {self.state.ledger_id} this stockpile exchanged with",
+                f"the server at {self.o.server_url} has ledger {ledger}: it was restarted "
+                f"without its ledger (STATE/ledger.sqlite); start the stockpile from a fresh "
+                f"checkpoint to exchange with it"))
 
     async def _sync_pending(self) -> None:
         n = self.nodes
@@ -300,12 +353,19 @@ class StockpileClient:
             await n["plant"].call_method(n["advance_time"],
                                          ua.Variant(float(self.o.period_s), ua.VariantType.Double))
             self.need_sync = True  # deterministic: take the records from the pending list
-        server_time, setpoint, last_seq = await self.client.read_values(
-            [n["simulation_time"], n["discharge_rate_setpoint"], n["inbound_last_sequence"]])
+        history = [n[k] for k in ("setpoint_change_times", "setpoint_change_values") if k in n]
+        server_time, setpoint, last_seq, *changes = await self.client.read_values(
+            [n["simulation_time"], n["discharge_rate_setpoint"], n["inbound_last_sequence"]]
+            + (history if len(history) == 2 else []))
         if self.need_sync or int(last_seq) > self.known_sequence:
             await self._sync_pending()
         self.asset.set_discharge_rate(float(setpoint))
-        self.advance_to(float(server_time))
+        if changes:
+            self.setpoint_changes = sorted(zip(map(float, changes[0] or []),
+                                               map(float, changes[1] or [])),
+                                           key=lambda change: change[0])  # stable: in order
+        self.advance_to(float(server_time),
+                        None if self.o.lockstep else self.o.cycle_budget_s)
         if self.state.outbox or self.state.last_applied != self.acked:
             self._checkpoint()  # only what will be sent or acknowledged needs to be durable
         await self._send()
@@ -314,12 +374,18 @@ class StockpileClient:
         lag = float(server_now) - self.asset.time
         self.lags_s.append(lag)
         self.max_lag_s = max(self.max_lag_s, lag)
+        now = time.monotonic()
+        if lag > LAG_WARNING_S and now - self._lag_warned_at > 10.0:
+            self._lag_warned_at = now
+            print(f"stockpile: not keeping real time: {lag:.1f} s of plant time behind the "
+                  f"server (nothing is lost; the exchange catches up)", file=sys.stderr, flush=True)
 
     async def _session(self) -> None:
         client = await self._connect()
         self.client = client
         try:
             await self._resolve(client)
+            await self._check_ledger()
             subscription = await client.create_subscription(50, self)
             await subscription.subscribe_events(self.nodes["sp201"],
                                                 self.nodes["bin_discharged_event_type"],
@@ -348,6 +414,24 @@ class StockpileClient:
     def _done(self) -> bool:
         return self.o.duration_s is not None and self.asset.time >= self.o.duration_s - 1e-9
 
+    def warm_up(self) -> None:
+        """Step a throw-away copy of the asset once before connecting.
+
+        A storage model's first step compiles its numba kernels (measured
+        under CPU load: the first cycle of a ROM stockpile took 48 s); done
+        here, that happens before the exchange starts, not inside a cycle.
+        """
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a one-bin pile is outside any training range
+            asset = StockpileAsset(self.o.model, seed=self.o.seed,
+                                   particle_mass_kg=self.o.particle_mass_kg,
+                                   storage_options=self.o.storage_options)
+            asset.receive_bin(1, 500.0, 0.01, 1.0)
+            asset.set_discharge_rate(100.0)
+            asset.step(self.o.dt_s)
+
     async def run(self) -> int:
         """Run until stopped (or ``duration_s``), reconnecting after failures."""
         from asyncua import ua
@@ -361,9 +445,13 @@ class StockpileClient:
             if self.o.rest_port_file:
                 Path(self.o.rest_port_file).write_text(str(port))
         try:
+            self.warm_up()
             while not self._stop.is_set():
                 try:
                     await self._session()
+                except LedgerChanged as exc:
+                    print(f"stockpile: {exc}", file=sys.stderr, flush=True)
+                    return 1
                 except ua.UaStatusCodeError as exc:
                     if exc.code in (ua.StatusCodes.BadUserAccessDenied,
                                     ua.StatusCodes.BadIdentityTokenRejected,

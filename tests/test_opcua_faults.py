@@ -137,3 +137,53 @@ def test_connection_cut_for_10_s_and_restored(tmp_path):
     assert summary["reconnects"] >= 1  # the cut was seen
     assert "connection lost" in client.log_path.read_text()
     _assert_nothing_lost(ledger, summary)
+
+
+@pytest.mark.slow
+def test_server_killed_and_restarted_keeps_its_ledger(tmp_path):
+    """SIGKILL of the plant server mid-run, restart on the same port and state:
+    its SQLite ledger brings back clock, sequences, pending bins and tracking
+    ids; the stockpile reconnects and nothing is lost, duplicated or reused."""
+    state = prepare_state(tmp_path / "state")
+    server = ServerProcess(tmp_path, state, speed=SPEED)
+    restarted = client = None
+    try:
+        client = StockpileProcess(tmp_path, state, server.url, model="mixing", rest=True)
+        time.sleep(4.0)
+        server.kill()  # a crash: no ledger JSON, no clean-up
+        time.sleep(1.5)
+        restarted = ServerProcess(tmp_path, state, speed=SPEED, port=server.port)
+        time.sleep(4.0)
+        ledger, summary = drain_and_stop(restarted, client)
+    finally:
+        for proc in (client, restarted, server):
+            if proc is not None:
+                proc.stop()
+    assert "serve-800xa: resumed ledger" in restarted.log_path.read_text()
+    assert "the server restarted" in client.log_path.read_text()
+    assert summary["reconnects"] >= 1
+    result = _assert_nothing_lost(ledger, summary)
+    # one distinct tracking id per inbound sequence number: none was given twice
+    assert len(ledger["entered"]) == result["bins_in"]
+    assert ledger["time_s"] > 8 * SPEED * 0.5  # the clock went on from where it was
+
+
+@pytest.mark.slow
+def test_a_server_restarted_without_its_ledger_is_refused_by_the_stockpile(tmp_path):
+    state = prepare_state(tmp_path / "state")
+    server = ServerProcess(tmp_path, state, speed=SPEED)
+    restarted = client = None
+    try:
+        client = StockpileProcess(tmp_path, state, server.url, model="fifo", rest=True)
+        time.sleep(3.0)
+        server.kill()
+        for name in ("ledger.sqlite", "ledger.sqlite-wal", "ledger.sqlite-shm"):
+            (state["server_state"] / name).unlink(missing_ok=True)
+        restarted = ServerProcess(tmp_path, state, speed=SPEED, port=server.port)
+        code = client.proc.wait(30)
+    finally:
+        for proc in (client, restarted, server):
+            if proc is not None:
+                proc.stop()
+    assert code == 1
+    assert "restarted without its ledger" in client.log_path.read_text()

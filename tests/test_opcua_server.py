@@ -127,7 +127,8 @@ def test_refused_sessions(plant, attempt, tmp_path):
             await client.disconnect()
     else:
         # asyncua's client itself refuses (no None endpoint offered), so go
-        # around it: a None channel, a session, a valid user, then a read
+        # around it: a None channel, then a session on it (the server refuses
+        # it before any password is seen: that channel is no password oracle)
         async def attempt_session():
             from asyncua import Client
             client = Client(server.url, timeout=4)
@@ -135,18 +136,14 @@ def test_refused_sessions(plant, attempt, tmp_path):
             try:
                 await client.send_hello()
                 await client.open_secure_channel()
-                with pytest.raises(ua.UaError, match="No matching endpoints"):
-                    await client.create_session()
-                await client.activate_session(username="viewer",
-                                              password=state["passwords"]["viewer"])
-                await client.get_node(ua.ObjectIds.Server_ServerStatus_CurrentTime).read_value()
+                await client.create_session()
             finally:
                 client.disconnect_socket()
 
     expected = {"anonymous": ua.StatusCodes.BadIdentityTokenRejected,
                 "wrong_password": ua.StatusCodes.BadUserAccessDenied,
                 "admin_user": ua.StatusCodes.BadUserAccessDenied,
-                "no_security": ua.StatusCodes.BadUserAccessDenied,
+                "no_security": ua.StatusCodes.BadSecurityModeRejected,
                 "untrusted_certificate": ua.StatusCodes.BadCertificateUntrusted}[attempt]
     with pytest.raises(ua.UaStatusCodeError) as err:
         asyncio.run(attempt_session())

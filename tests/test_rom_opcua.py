@@ -84,7 +84,7 @@ def test_rom_stockpile_over_opcua_loses_nothing_and_discharges(rom_file, tmp_pat
     assert any(w.startswith("OutOfTrainingRange: ROM input held_mass")
                for w in report["stockpile_warnings"])
     # nothing lost, nothing counted twice, every kilogram accounted for
-    assert report["duration_s"] >= duration
+    assert report["duration_s"] == pytest.approx(duration)  # plant time, whatever the lag
     assert report["bins_in"] >= 35
     assert report["tracking_ids_lost"] == 0 and report["tracking_ids_duplicated"] == 0
     assert report["mass_balance_rel_error"] < 1e-9 and report["unsent_reports"] == 0

@@ -25,6 +25,9 @@ def register(subparsers) -> None:
     parser.add_argument("--state-dir", type=Path,
                         help="folder of certificates, trust list and users.toml")
     parser.add_argument("--ledger", type=Path, help="write the exchange ledger JSON here at exit")
+    parser.add_argument("--until", type=float, metavar="S",
+                        help="freeze the clock at S s of simulation time and write the ledger "
+                             "(as SIGUSR1 does), so a run ends at a known plant time")
     parser.add_argument("--ready-file", type=Path,
                         help="write the endpoint URL here once the server listens")
     parser.add_argument("--add-user", metavar="NAME:ROLE",
@@ -53,11 +56,13 @@ def run(args) -> int:
         return _add_user(Path(config["server"]["state_dir"]), args.add_user)
     if not (args.speed > 0 and args.speed < 1e6):
         raise ValidationError("speed", "in (0, 1e6)", f"got {args.speed}")
+    if args.until is not None and not 0 < args.until < 1e9:
+        raise ValidationError("until", "in (0, 1e9) s", f"got {args.until}")
     from opcua_server.server import serve
 
     return asyncio.run(serve(config, speed=args.speed, insecure=args.insecure,
                              lockstep=args.lockstep, ledger_path=args.ledger,
-                             ready_file=args.ready_file))
+                             ready_file=args.ready_file, until_s=args.until))
 
 
 def _add_user(state_dir: Path, spec: str) -> int:

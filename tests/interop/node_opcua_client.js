@@ -76,12 +76,23 @@ async function main() {
   };
   result.operator_write = await write(operator, 321.0);
   result.operator_write_out_of_range = await write(operator, 5000.0);
-  const viewer = await client.createSession({
+  // one session per secure channel (the server refuses a second one): the viewer
+  // connects with its own client
+  const viewerClient = OPCUAClient.create({
+    applicationName: "node-opcua interop viewer", applicationUri: cfg.application_uri,
+    securityMode: MessageSecurityMode.SignAndEncrypt, securityPolicy: SecurityPolicy.Basic256Sha256,
+    certificateFile: cfg.certificate_pem, privateKeyFile: cfg.private_key_pem,
+    clientCertificateManager: certificateManager, endpointMustExist: false,
+    connectionStrategy: { maxRetry: 2, initialDelay: 300, maxDelay: 1000 },
+  });
+  await viewerClient.connect(cfg.url);
+  const viewer = await viewerClient.createSession({
     type: UserTokenType.UserName, userName: "viewer", password: cfg.viewer_password });
   result.viewer_write = await write(viewer, 111.0);
   result.setpoint_after = (await viewer.read({
     nodeId: id("Plant.SP201.DischargeRateSetpoint"), attributeId: AttributeIds.Value })).value.value;
   await viewer.close();
+  await viewerClient.disconnect();
   await operator.close();
   await client.disconnect();
   console.log("RESULT " + JSON.stringify(result));

@@ -1,0 +1,134 @@
+"""Durable ledger of the mock 800xA server: SQLite in WAL mode, one file per plant.
+
+A server stopped with SIGTERM or killed with SIGKILL comes back with the same
+clock, belts, inbound sequence, pending bins, outbound sequence, applied
+reports and tracking ids, so a restart loses and duplicates nothing and never
+gives a tracking id twice. Every change is committed (``synchronous=FULL``)
+*before* the server answers the call or emits the event that makes it
+visible: what a client has seen, the ledger has.
+
+File ``STATE/ledger.sqlite``:
+
+* ``meta(key, value)``: ``ledger_id`` (a UUID made with the file; the client
+  keeps it in its checkpoint and refuses a server with another ledger),
+  ``schema`` (``SCHEMA_VERSION``) and ``state`` (``PlantProcess.state()`` as
+  JSON: clock, counters, belts, setpoints, CV301 contents);
+* ``inbound(sequence, tracking_id, mass_kg, grade, hardness, source, time_s)``:
+  every discharged bin; the pending ones are those above the acknowledged
+  sequence;
+* ``bins(tracking_id, entered_kg, source, left_kg, grade)``: per tracking id;
+* ``reports(sequence, digest, log)``: applied outflow reports (the digest
+  tells a resend from a conflicting replay).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+import uuid
+from pathlib import Path
+
+from cosim.errors import ValidationError
+from opcua_server.process import InboundRecord, PlantProcess
+
+SCHEMA_VERSION = 1
+SAVE_CLOCK_EVERY_S = 1.0
+"""Wall seconds [s] between saves when only the clock moved (anything else
+is saved at once)."""
+
+_TABLES = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS inbound (sequence INTEGER PRIMARY KEY, tracking_id TEXT NOT NULL,
+    mass_kg REAL NOT NULL, grade REAL NOT NULL, hardness REAL NOT NULL, source INTEGER NOT NULL,
+    time_s REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS bins (tracking_id TEXT PRIMARY KEY, entered_kg REAL NOT NULL,
+    source INTEGER NOT NULL, left_kg REAL NOT NULL DEFAULT 0, grade REAL NOT NULL DEFAULT 0);
+CREATE TABLE IF NOT EXISTS reports (sequence INTEGER PRIMARY KEY, digest TEXT NOT NULL,
+    log TEXT NOT NULL);
+"""
+# tracking ids are uint64: stored as decimal text (SQLite integers are signed 64-bit)
+
+
+class LedgerStore:
+    """The ledger file of one plant; ``load`` into a process, ``save`` its changes."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.db = sqlite3.connect(self.path, timeout=10.0, isolation_level=None)
+            self.db.execute("PRAGMA journal_mode=WAL")
+            self.db.execute("PRAGMA synchronous=FULL")
+            self.db.executescript(_TABLES)
+            meta = dict(self.db.execute("SELECT key, value FROM meta"))
+        except sqlite3.DatabaseError as exc:
+            raise ValidationError("ledger", "an SQLite ledger file of serve-800xa",
+                                  f"{self.path}: {exc}") from None
+        if meta.get("schema", str(SCHEMA_VERSION)) != str(SCHEMA_VERSION):
+            raise ValidationError("ledger", f"schema {SCHEMA_VERSION}",
+                                  f"{self.path} has schema {meta['schema']}")
+        self.ledger_id = meta.get("ledger_id")
+        self.fresh = self.ledger_id is None
+        if self.fresh:
+            self.ledger_id = str(uuid.uuid4())
+            with self.db:
+                self.db.executemany("INSERT INTO meta VALUES (?, ?)",
+                                    [("ledger_id", self.ledger_id),
+                                     ("schema", str(SCHEMA_VERSION))])
+        self._saved_revision = None
+        self._saved_at = -float("inf")
+
+    def load(self, process: PlantProcess) -> bool:
+        """Restore ``process`` from the file; False if the file had no state yet."""
+        row = self.db.execute("SELECT value FROM meta WHERE key = 'state'").fetchone()
+        if row is None:
+            return False
+        state = json.loads(row[0])
+        acked = int(state["acknowledged_sequence"])
+        inbound = [InboundRecord(seq, int(tid), m, g, h, src, t) for seq, tid, m, g, h, src, t in
+                   self.db.execute("SELECT * FROM inbound WHERE sequence > ?", (acked,))]
+        bins = [(int(tid), m, src, left, g) for tid, m, src, left, g in
+                self.db.execute("SELECT * FROM bins")]
+        reports = [(seq, digest, json.loads(log)) for seq, digest, log in
+                   self.db.execute("SELECT * FROM reports")]
+        process.restore(state, inbound, bins, reports)
+        self._saved_revision = process.revision
+        return True
+
+    def save(self, process: PlantProcess, force: bool = False) -> None:
+        """Commit what changed since the last save (the journal and the state).
+
+        Only the clock moved: saved at most every ``SAVE_CLOCK_EVERY_S``
+        (restarting from a slightly earlier time is consistent: belts and
+        counters are those of that time), unless ``force``.
+        """
+        now = time.monotonic()
+        if not (force or process.journal or process.revision != self._saved_revision
+                or now - self._saved_at >= SAVE_CLOCK_EVERY_S):
+            return
+        journal, process.journal = process.journal, []
+        with self.db:  # one transaction
+            for entry in journal:
+                if entry[0] == "inbound":
+                    r = entry[1]
+                    self.db.execute("INSERT INTO inbound VALUES (?, ?, ?, ?, ?, ?, ?)",
+                                    (r.sequence, str(r.tracking_id), r.mass_kg, r.grade,
+                                     r.hardness, r.source, r.time_s))
+                    self.db.execute("INSERT OR REPLACE INTO bins (tracking_id, entered_kg, "
+                                    "source) VALUES (?, ?, ?)",
+                                    (str(r.tracking_id), r.mass_kg, r.source))
+                else:
+                    _, sequence, digest, log, rows = entry
+                    self.db.execute("INSERT INTO reports VALUES (?, ?, ?)",
+                                    (sequence, digest, json.dumps(log, allow_nan=False)))
+                    self.db.executemany("UPDATE bins SET left_kg = ?, grade = ? "
+                                        "WHERE tracking_id = ?",
+                                        [(left, grade, str(tid)) for tid, left, grade in rows])
+            self.db.execute("INSERT OR REPLACE INTO meta VALUES ('state', ?)",
+                            (json.dumps(process.state(), allow_nan=False),))
+        self._saved_revision = process.revision
+        self._saved_at = now
+
+    def close(self) -> None:
+        self.db.close()
