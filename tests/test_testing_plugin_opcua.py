@@ -22,8 +22,8 @@ class DropsOneRecord(StockpileClient):
     dropped = None
     reports = 0
 
-    def advance_to(self, target_time):
-        report = super().advance_to(target_time)
+    def advance_to(self, target_time, budget_s=None):
+        report = super().advance_to(target_time, budget_s)
         if report is not None:
             self.reports += 1
             if self.reports == 3:
