@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 OUT    ?= out
 
-.PHONY: setup fmus test-prereqs demo test test-fast bench clean
+.PHONY: setup fmus test-prereqs demo test test-fast bench clean monitor-vendor
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -43,6 +43,14 @@ test-fast: setup test-prereqs
 
 bench: setup
 	$(BIN)/python benchmarks/run_all.py --out $(OUT)/bench
+
+# The monitor serves its charting library itself (nothing loads from the network):
+# uPlot, pinned in monitor/package.json, is copied with its MIT licence notice into
+# monitor/static/vendor/, which is committed; rerun after changing the pinned version.
+monitor-vendor:
+	cd monitor && npm ci --no-audit --no-fund
+	cp monitor/node_modules/uplot/dist/uPlot.iife.min.js monitor/node_modules/uplot/dist/uPlot.min.css monitor/static/vendor/
+	cp monitor/node_modules/uplot/LICENSE monitor/static/vendor/uPlot.LICENSE
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info fmus/build

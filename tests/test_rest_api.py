@@ -309,6 +309,31 @@ def test_fifo_feed_is_the_oldest_bins():
     assert profile_grades[0] == pytest.approx(0.8) and profile_grades[-1] == pytest.approx(0.2)
 
 
+def test_events_are_the_lots_in_and_out():
+    """/events: one event per bin received, one per tracking id and step that
+    left, numbered 1, 2, ...; paged by since and limit."""
+    server = serve_in_thread(_fed_stockpile())
+    base = f"http://127.0.0.1:{server.port}"
+    try:
+        body = get(base, "/events")[1]
+        assert [e["seq"] for e in body["events"]] == list(range(1, body["last_seq"] + 1))
+        received = [e for e in body["events"] if e["kind"] == "in"]
+        assert [(e["tracking_id"], e["mass_kg"], e["grade"], e["source"]) for e in received] == \
+            [(100 + k, BIN_KG, (0.2, 0.8)[k % 2], k % 2) for k in range(10)]
+        left = [e for e in body["events"] if e["kind"] == "out"]
+        # 5 steps of 1 s at 500 kg/s: bin 100 whole, then a quarter of 101
+        assert sum(e["mass_kg"] for e in left) == pytest.approx(5 * RATE_KG_S)
+        assert {e["tracking_id"] for e in left} == {100, 101}
+        assert sorted({e["time_s"] for e in left}) == [1.0, 2.0, 3.0, 4.0, 5.0]
+        page = get(base, "/events?since=3&limit=2")[1]
+        assert [e["seq"] for e in page["events"]] == [4, 5]
+        assert get(base, f"/events?since={body['last_seq']}")[1]["events"] == []
+        totals = get(base, "/totals")[1]
+        assert totals["discharge_actual_kg_s"] == pytest.approx(RATE_KG_S)
+    finally:
+        server.stop()
+
+
 def test_rest_component_serves_the_mine_simulator_stockpile():
     """The stockpile of the mine simulator (what ``minetwin simulate`` runs),
     read over REST while the master runs: every reading is the state at a
@@ -336,7 +361,7 @@ def test_rest_component_serves_the_mine_simulator_stockpile():
     reader = threading.Thread(target=read_while_running)
     reader.start()
     try:
-        simulation.run(240.0)
+        simulation.run(510.0)  # the feeder starts at 500 s
     finally:
         stop.set()
         reader.join()
@@ -349,6 +374,17 @@ def test_rest_component_serves_the_mine_simulator_stockpile():
     recorded = simulation.timeseries["stockpile.mass_kg"]
     for t, mass in recorded.items():
         assert history[t]["held_mass_kg"] == pytest.approx(mass, rel=1e-12, abs=1e-9)
+    # the lots in and out balance the mass held, and the actual discharge rate
+    # of each step is the mass of that step's lots out over its length
+    events, times = rest.view.events(), sorted(history)
+    moved = {kind: sum(e["mass_kg"] for e in events if e["kind"] == kind) for kind in ("in", "out")}
+    assert moved["in"] > 0 and moved["out"] > 0
+    assert moved["in"] - moved["out"] == pytest.approx(
+        history[times[-1]]["held_mass_kg"] - history[times[0]]["held_mass_kg"], abs=1e-6)
+    for before, after in zip(times, times[1:]):
+        out = sum(e["mass_kg"] for e in events if e["kind"] == "out" and e["time_s"] == after)
+        assert history[after]["discharge_actual_kg_s"] == pytest.approx(
+            out / (after - before), rel=1e-12, abs=1e-12)
 
 
 BAD_PARAMETERS = [
@@ -365,6 +401,8 @@ BAD_PARAMETERS = [
     ("/feed?horizon=0", "horizon"), ("/feed?horizon=-5", "horizon"),
     ("/feed?horizon=inf", "horizon"), ("/feed?horizon=1e9", "horizon"),
     ("/feed?horizon=soon", "horizon"),
+    ("/events?since=-1", "since"), ("/events?since=x", "since"), ("/events?limit=0", "limit"),
+    ("/events?limit=5001", "limit"),
 ]
 
 
@@ -395,7 +433,7 @@ def test_openapi_document_is_served_and_covers_every_endpoint(served):
     assert status == 200
     assert body == json.loads(json.dumps(OPENAPI))
     assert set(body["paths"]) == {"/health", "/totals", "/history", "/fields", "/particles",
-                                  "/feed", "/openapi.json"}
+                                  "/feed", "/events", "/openapi.json"}
 
 
 # ------------------------------------------------------------ property-based
