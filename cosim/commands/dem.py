@@ -75,7 +75,7 @@ def _finish(dem, out, label, wall, steps, n_particle_steps, discharged_kg, balan
     from surrogate.dem.plots import pile_pictures
 
     dem.save_checkpoint(out / "checkpoint.npz")
-    pile_pictures(dem.snapshot(), out, title=label)
+    pile_pictures(dem.snapshot(), out, run=label)
     summary = {
         "particles": dem.n,
         "dt_s": dem.dt,
@@ -151,7 +151,11 @@ def run_pile(args) -> int:
                   progress=counter)
     settle(dem, max_time=args.settle_time, progress=counter)
     wall = time.perf_counter() - start
-    return _finish(dem, out, "pile", wall, dem.steps_done, counter.particle_steps,
+    from cosim.plotstyle import run_label
+
+    label = run_label(scenario=f"dem pile ({args.method}, {args.particles} particles)",
+                      seed=args.seed, model="dem")
+    return _finish(dem, out, label, wall, dem.steps_done, counter.particle_steps,
                    dem.discharged_mass, dem.mass_balance_error())
 
 
@@ -193,7 +197,11 @@ def run_discharge(args) -> int:
     rate = discharged / args.duration
     print(f"dem discharge: {discharged:.0f} kg in {args.duration:g} s = {rate:.1f} kg/s "
           f"(setpoint {args.rate:g} kg/s)", file=sys.stderr)
-    return _finish(dem, out, "discharge", wall, dem.steps_done - steps0,
+    from cosim.plotstyle import run_label
+
+    label = run_label(scenario=f"dem discharge from {args.source} at {args.rate:g} kg/s",
+                      model="dem")
+    return _finish(dem, out, label, wall, dem.steps_done - steps0,
                    counter.particle_steps, discharged, balance)
 
 
