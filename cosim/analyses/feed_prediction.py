@@ -328,7 +328,8 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
             return probes[-1]
 
         run = run_profile(out / f"run_{name}", until=until, config=model_config, seed=seed,
-                          progress=progress, probes=(feed_probe, snapshot_probe))
+                          progress=progress and f"feed prediction: {name} run",
+                          probes=(feed_probe, snapshot_probe))
         ts = run.timeseries
         predicted = pd.DataFrame({"time": run.times,
                                   **{key: ts[f"feed_prediction.{key}"].to_numpy()

@@ -432,7 +432,7 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
     out = output_folder(out_dir)
     until = QUICK_UNTIL_S if quick else FULL_UNTIL_S
     run = run_profile(out / "run", until=until, config=scenario_config(quick=quick), seed=seed,
-                      progress=progress)
+                      progress=progress and "grindability run")
     summary, data = analyse(run)
     summary.update(quick=quick, simulated_s=until, seed=run.config["simulation"]["seed"],
                    wall_s=run.run_summary["wall_s"],

@@ -381,7 +381,7 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
     error = MWD_LOCATION_ERROR_M if location_error is None else float(location_error)
     until = QUICK_UNTIL_S if quick else FULL_UNTIL_S
     run = run_profile(out / "run", until=until, config=scenario_config(quick=quick),
-                      location_error=error, seed=seed, progress=progress)
+                      location_error=error, seed=seed, progress=progress and "MWD run")
     summary, data = analyse(run)
     summary.update(quick=quick, simulated_s=until, location_error_m=error,
                    seed=run.config["simulation"]["seed"], wall_s=run.run_summary["wall_s"],

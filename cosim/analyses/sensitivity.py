@@ -209,7 +209,7 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
     out = output_folder(out_dir)
     until = grindability.QUICK_UNTIL_S if quick else grindability.FULL_UNTIL_S
     run = run_profile(out / "run", until=until, config=scenario_config(quick=quick), seed=seed,
-                      progress=progress)
+                      progress=progress and "sensitivity run")
     dxs, seeds = (QUICK_DXS, QUICK_SEEDS) if quick else (FULL_DXS, FULL_SEEDS)
     if progress:
         print(f"sensitivity: {len(dxs)} location errors x {len(seeds)} seeds "

@@ -253,11 +253,15 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
     out = Path(out_dir)
     config = load(scenario)
     until = QUICK_UNTIL_S if quick else config["simulation"]["until_s"]
+    name = Path(scenario).stem
     step_sim, step_summary = run_scenario(config, out / "step", until=until,
-                                          storage_model=storage_model, progress=progress)
+                                          storage_model=storage_model,
+                                          progress=progress and "step response: hardness step run",
+                                          scenario_name=name)
     ref_sim, ref_summary = run_scenario(reference_config(step_sim.config), out / "reference",
                                         until=until, storage_model=storage_model,
-                                        progress=progress)
+                                        progress=progress and "step response: reference run",
+                                        scenario_name=f"{name} (reference)")
     truck = next(a for a in step_sim.assets.values() if hasattr(a, "cycle_time"))
     hard_s = hard_ore_reached_s(out / "step" / "events.sqlite",
                                 step_sim.config["trucks"][0]["load_time_s"])
@@ -270,7 +274,7 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
 
     plot(step_sim.timeseries, ref_sim.timeseries, summary, out,
          step_sim.config["simulation"]["sensor_window_s"],
-         run=run_label(step_sim.config, scenario=Path(scenario).stem))
+         run=run_label(step_sim.config, scenario=name))
     failed = checks(summary)
     summary["checks_failed"] = failed
     summary = {key: None if isinstance(value, float) and not np.isfinite(value) else value

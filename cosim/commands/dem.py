@@ -114,6 +114,7 @@ class _Counter:
 
 
 def run_pile(args) -> int:
+    import math
     import time
     from pathlib import Path
 
@@ -143,13 +144,19 @@ def run_pile(args) -> int:
         dem = Dem(cfg, seed=args.seed)
     else:
         dem = packed_pile(cfg, args.particles, seed=args.seed)
-    counter = _Counter(Progress(sys.stderr, "dem pile"), dem)
+    from surrogate.dem.emitter import mean_particle_mass
+
+    # the longest it can take: the fill (whole lots), then the whole settling time
+    lots = math.ceil(args.particles * mean_particle_mass(cfg) / args.lot_kg)
+    longest = (lots * args.lot_interval if args.method == "pour" else 0.0) + args.settle_time
+    counter = _Counter(Progress(sys.stderr, "dem pile", total=dem.time + longest), dem)
     if args.snapshot_interval:
         counter.writer = SnapshotWriter(out / "snapshots", args.snapshot_interval)
     if args.method == "pour":
         pour_pile(dem, args.particles, lot_kg=args.lot_kg, lot_interval=args.lot_interval,
                   progress=counter)
     settle(dem, max_time=args.settle_time, progress=counter)
+    counter.progress.close(dem)
     wall = time.perf_counter() - start
     from cosim.plotstyle import run_label
 
@@ -179,7 +186,8 @@ def run_discharge(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     held0 = dem.held_mass()
     steps0 = dem.steps_done
-    counter = _Counter(Progress(sys.stderr, "dem discharge"), dem)
+    counter = _Counter(Progress(sys.stderr, "dem discharge",
+                                total=dem.time + args.duration), dem)
     if args.snapshot_interval:
         counter.writer = SnapshotWriter(out / "snapshots", args.snapshot_interval)
     chunk = 0.25
@@ -190,6 +198,7 @@ def run_discharge(args) -> int:
         dem.advance(min(chunk, end - dem.time))
         records.append(dem.discharged())
         counter(dem)
+    counter.progress.close(dem)
     wall = time.perf_counter() - start
     _write_discharged(out / "discharged.csv", records)
     discharged = float(sum(r["mass"].sum() for r in records))
