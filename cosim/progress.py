@@ -9,8 +9,9 @@ A line reads
 
     simulate: [#######       ] t = 300.0 / 1200 s (25 %), 88x real time, 3 s elapsed, ETA 10 s
 
-The speed and the ETA appear once there is something to measure them by (no
-"0x real time" in the first line). ``note`` prints a one-off message, e.g.
+The speed and the ETA are measured from the first line on, so the start-up
+(building, compiling) does not count in them, and the first line has neither
+(no "0x real time"). ``note`` prints a one-off message, e.g.
 that the first call compiles the numerical kernels.
 
 Parameters (``Progress``)
@@ -56,11 +57,16 @@ class Progress:
         self.start = wallclock.perf_counter()
         self.last = None
         self.done = 0.0
+        self._first = None  # (wall time, done) of the first line
         self._open_frame = False
 
     def line(self, done: float, extra: str = "") -> str:
         """The progress text at ``done`` simulated seconds (no line break)."""
-        elapsed = wallclock.perf_counter() - self.start
+        now = wallclock.perf_counter()
+        elapsed = now - self.start
+        if self._first is None:
+            self._first = (now, done)
+        measured_s, measured = now - self._first[0], done - self._first[1]
         parts = []
         if self.total:
             fraction = min(max(done / self.total, 0.0), 1.0)
@@ -69,13 +75,12 @@ class Progress:
                          f"({100 * fraction:.0f} %)")
         else:
             parts.append(f"t = {done:.1f} s")
-        if elapsed > 0.5 and done > 0:
-            factor = done / elapsed
-            parts.append(f"{factor:,.0f}x real time" if factor >= 10 else
-                         f"{factor:.2g}x real time")
+        rate = measured / measured_s if measured_s > 0.5 and measured > 0 else None
+        if rate is not None:
+            parts.append(f"{rate:,.0f}x real time" if rate >= 10 else f"{rate:.2g}x real time")
         parts.append(f"{_duration(elapsed)} elapsed")
-        if self.total and elapsed > 0.5 and 0 < done < self.total:
-            parts.append(f"ETA {_duration(elapsed * (self.total - done) / done)}")
+        if self.total and rate is not None and done < self.total:
+            parts.append(f"ETA {_duration((self.total - done) / rate)}")
         if extra:
             parts.append(extra)
         return f"{self.label}: " + ", ".join(parts)

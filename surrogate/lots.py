@@ -21,6 +21,9 @@ from collections import deque
 
 import numpy as np
 
+ACTUAL_RATE_WINDOW_S = 30.0
+"""Trailing window [s] of the actual discharge rate (the virtual sensors' 30 s window)."""
+
 EVENT_KINDS = ("in", "out")
 """``in``: a lot received; ``out``: (part of) a lot discharged."""
 
@@ -55,3 +58,26 @@ class LotLog:
             return []
         first = self._events[0]["seq"]
         return list(self._events)[max(int(seq) - first + 1, 0):]
+
+
+class DischargeRate:
+    """The actual discharge rate [kg/s]: the mass that left in the trailing
+    ``window_s`` [s] (default 30) over that window, or over the time since
+    ``start_s`` while the run is younger than the window. A per-step rate of
+    ~100 kg pseudo-particles jumps by a particle per step; the window
+    averages that out like the other virtual sensors."""
+
+    def __init__(self, start_s: float = 0.0, window_s: float = ACTUAL_RATE_WINDOW_S):
+        self.start_s = float(start_s)
+        self.window_s = float(window_s)
+        self._left: deque[tuple[float, float]] = deque()
+        self._sum = 0.0
+
+    def add(self, time_s: float, mass_kg: float) -> float:
+        """Record ``mass_kg`` leaving at ``time_s``; returns the rate then."""
+        self._left.append((float(time_s), float(mass_kg)))
+        self._sum += float(mass_kg)
+        while self._left and self._left[0][0] <= time_s - self.window_s:
+            self._sum -= self._left.popleft()[1]
+        span = min(self.window_s, time_s - self.start_s)
+        return max(self._sum, 0.0) / span if span > 0 else 0.0

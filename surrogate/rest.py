@@ -18,7 +18,7 @@ Two parts:
     storage calls ``record()`` after each step to extend the time series;
     ``record`` also compares the particles held with the previous call's to
     find the lots in and out (``surrogate.lots``) and the actual discharge
-    rate (mass that left over the time since).
+    rate (mass that left over the trailing 30 s, ``surrogate.lots.DischargeRate``).
 ``RestComponent.attach(master, particles, storage, discharge_rate)``
     serves a storage asset of a running co-simulation master (the mine
     simulator), optionally paced to real time.
@@ -54,7 +54,7 @@ from cosim.errors import ValidationError
 from cosim.master import Component
 from cosim.sensors import observe
 from cosim.sizes import d_passing
-from surrogate.lots import LotLog
+from surrogate.lots import ACTUAL_RATE_WINDOW_S, DischargeRate, LotLog
 
 TOTALS_KEYS = ("time_s", "held_mass_kg", "grade", "hardness", "d80_m", "particle_count",
                "discharge_rate_kg_s", "discharge_actual_kg_s")
@@ -118,6 +118,7 @@ class StorageView:
         self.lots = LotLog()
         self.discharge_actual = 0.0
         self._held = None  # (time, sorted ids, mass, grade, tracking) at the last record
+        self._actual = None
 
     @property
     def time(self) -> float:
@@ -183,12 +184,12 @@ class StorageView:
         now = (time_s, store.id[slots], store.mass[slots], store.grade[slots], tracking)
         before, self._held = self._held, now
         if before is None:
+            self._actual = DischargeRate(time_s)
             return
-        t0, ids0, mass0, grade0, tracking0 = before
+        ids0, mass0 = before[1], before[2]
         left = ~np.isin(ids0, now[1], assume_unique=True)
         entered = ~np.isin(now[1], ids0, assume_unique=True)
-        out_mass = float(mass0[left].sum())
-        self.discharge_actual = out_mass / (time_s - t0) if time_s > t0 else 0.0
+        self.discharge_actual = self._actual.add(time_s, float(mass0[left].sum()))
         for kind, mask, (_, _, mass, grade, tid) in (("in", entered, now),
                                                      ("out", left, before)):
             if not mask.any():
@@ -676,8 +677,10 @@ _TOTALS = {
         "discharge_rate_kg_s": {"type": "number", "minimum": 0,
                                 "description": "feeder rate setpoint [kg/s]"},
         "discharge_actual_kg_s": {"type": "number", "minimum": 0,
-                                  "description": "mass discharged over the last step divided "
-                                                 "by its length [kg/s]"},
+                                  "description": "actual discharge rate [kg/s]: mass that left "
+                                                 f"in the trailing {ACTUAL_RATE_WINDOW_S:g} s "
+                                                 "over that window (over the run while it is "
+                                                 "younger)"},
     },
 }
 _LAYOUT = {"type": "string", "enum": ["schematic", "particles"],

@@ -60,7 +60,7 @@ from cosim.errors import ValidationError, check_finite_range
 from cosim.particles import ParticleStore
 from cosim.sizes import d_passing, rosin_rammler
 from cosim.storage import check_discharge_rate, make_storage
-from surrogate.lots import LotLog
+from surrogate.lots import DischargeRate, LotLog
 
 STOCKPILE_OWNER = 1
 """Owner index of the stockpile in its own particle store."""
@@ -106,6 +106,7 @@ class StockpileAsset:
         self.mass_in_kg = 0.0
         self.mass_out_kg = 0.0
         self.discharge_actual = 0.0
+        self._actual = DischargeRate(self.time)
         self.source_names = {int(k): str(v) for k, v in (source_names or {}).items()}
         self.lots = LotLog(event_rows)
         self._history: deque[dict] = deque(maxlen=int(history_rows))
@@ -152,7 +153,7 @@ class StockpileAsset:
         leaving = self.storage.step(self.time, dt, self.discharge_rate)
         self.time += dt
         outflow = self._remove(leaving)
-        self.discharge_actual = float(outflow["masses"].sum()) / dt if dt > 0 else 0.0
+        self.discharge_actual = self._actual.add(self.time, float(outflow["masses"].sum()))
         self.lots.add("out", self.time, outflow["tracking_ids"], outflow["masses"],
                       outflow["grades"], outflow["sources"], outflow["counts"])
         self._history.append(self.totals())

@@ -304,6 +304,9 @@ const SHOWN = {grade: {scale: 100, label: "grade [%]", digits: 0},
                hardness: {scale: 1, label: "hardness [-]", digits: 3},
                residence_time: {scale: 1, label: "residence time [s]", digits: 0},
                origin: {scale: 1, label: "origin", digits: 0}};
+// Origins too many to name (the mine simulator's: where in the ore body each
+// particle was mined) are coloured on a ramp along x.
+const ORIGIN_RAMP_LABEL = "origin: x where the ore was mined [m]";
 
 function colouring(values, attribute) {
   const finite = values.filter((v) => v !== null && Number.isFinite(v));
@@ -340,10 +343,12 @@ function drawLegend(scheme, attribute) {
       ctx.fillStyle = rampColour(x / (bar.width - 1));
       ctx.fillRect(x, 0, 1, bar.height);
     }
-    $("legend-min").textContent = (scheme.lo * shown.scale).toFixed(shown.digits);
-    $("legend-max").textContent = (scheme.hi * shown.scale).toFixed(shown.digits);
+    const ends = attribute === "origin" ? [" m (left)", " m (right)"] : ["", ""];
+    $("legend-min").textContent = (scheme.lo * shown.scale).toFixed(shown.digits) + ends[0];
+    $("legend-max").textContent = (scheme.hi * shown.scale).toFixed(shown.digits) + ends[1];
   }
-  $("legend-label").textContent = shown.label;
+  $("legend-label").textContent = attribute === "origin" && !scheme.categorical
+    ? ORIGIN_RAMP_LABEL : shown.label;
 }
 
 // 1, 2 or 5 times a power of ten, the largest not above x.
