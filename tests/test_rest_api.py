@@ -334,16 +334,19 @@ def test_events_are_the_lots_in_and_out():
         server.stop()
 
 
-def test_rest_component_serves_the_mine_simulator_stockpile():
+def test_rest_component_serves_the_mine_simulator_stockpile(tmp_path):
     """The stockpile of the mine simulator (what ``minetwin simulate`` runs),
     read over REST while the master runs: every reading is the state at a
-    step boundary (equal to that step's row), and the rows equal the
-    simulator's own record of the stockpile mass."""
+    step boundary (equal to that step's row), the rows equal the
+    simulator's own record of the stockpile mass, and the lots in and out
+    are the stockpile's enter and exit events in events.sqlite."""
+    from cosim.events import EventStore
     from cosim.scenario import build, load
 
     try:
         simulation = build(load(Path(__file__).resolve().parents[1] / "examples"
-                                / "step_response.toml"), progress=False)
+                                / "step_response.toml"), progress=False,
+                           events_path=tmp_path / "events.sqlite")
     except ValidationError as exc:
         pytest.skip(f"mine simulator not runnable here (build the FMUs first): {exc}")
     pile = simulation.assets["stockpile"]
@@ -385,6 +388,20 @@ def test_rest_component_serves_the_mine_simulator_stockpile():
         out = sum(e["mass_kg"] for e in events if e["kind"] == "out" and t - 30 < e["time_s"] <= t)
         assert history[t]["discharge_actual_kg_s"] == pytest.approx(
             out / min(30.0, t - times[0]), rel=1e-9, abs=1e-9)
+    # each lot is the particles of the enter (in) or exit (out) events of its
+    # step, stamped with the step's end time like the lot
+    store = EventStore(tmp_path / "events.sqlite", readonly=True)
+    try:
+        for kind, type_ in (("in", "enter"), ("out", "exit")):
+            recorded = store.particles(type=type_, asset="stockpile")
+            lots = [e for e in events if e["kind"] == kind]
+            assert sum(e["particle_count"] for e in lots) == len(recorded) > 0
+            for lot in lots:
+                step = recorded[np.isclose(recorded.time, lot["time_s"], rtol=0, atol=1e-9)]
+                assert lot["particle_count"] == len(step)
+                assert lot["mass_kg"] == pytest.approx(step.mass.sum(), rel=1e-12)
+    finally:
+        store.close()
 
 
 BAD_PARAMETERS = [
