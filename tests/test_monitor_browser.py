@@ -264,6 +264,17 @@ def test_monitor_page_against_the_mine_simulator(tmp_path):
                     "Number(document.getElementById('held-mass').dataset.value) > 0",
                     timeout=30_000)
                 _check_shown_values_equal_rest(page, match.group(0))
+                # FIFO has no geometry: the picture says it is schematic
+                sync_api.expect(page.locator("#pile")).to_have_attribute("data-layout",
+                                                                         "schematic")
+                sync_api.expect(page.locator("#pile-title")).to_contain_text("SCHEMATIC")
+                # the events the page holds are the stockpile's, in order
+                shown = page.evaluate("""() => window.monitorState.events.map(
+                    (e) => [e.seq, e.kind, e.mass_kg, e.particle_count])""")
+                status, served = get(match.group(0) + "/events")
+                assert status == 200 and shown
+                assert shown == [[e["seq"], e["kind"], e["mass_kg"], e["particle_count"]]
+                                 for e in served["events"]][:len(shown)]
                 page.select_option("#colour-by", "origin")
                 sync_api.expect(page.locator("#pile")).to_have_attribute("data-colour-by",
                                                                          "origin")
