@@ -19,7 +19,8 @@ Parameters (``Progress``)
 label : str
     What runs, e.g. ``"simulate"`` or ``"reference run"``.
 total : float or None
-    Simulated time [s] the run goes to; None when unknown (no bar, no ETA).
+    Simulated time [s] the run goes to, or an estimate of it; None when
+    unknown (no bar, no ETA).
 stream : file
     Where to write, default ``sys.stderr``.
 every_s, log_every_s : float
@@ -68,7 +69,9 @@ class Progress:
             self._first = (now, done)
         measured_s, measured = now - self._first[0], done - self._first[1]
         parts = []
-        if self.total:
+        if self.total and done > self.total:  # the total was an estimate
+            parts.append(f"t = {done:.1f} s (estimated {self.total:g} s)")
+        elif self.total:
             fraction = min(max(done / self.total, 0.0), 1.0)
             bar = "#" * int(BAR_WIDTH * fraction)
             parts.append(f"[{bar:<{BAR_WIDTH}}] t = {done:.1f} / {self.total:g} s "

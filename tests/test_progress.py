@@ -91,3 +91,11 @@ def test_master_reports_with_its_label_in_plain_lines(capsys):
     lines = err.splitlines()
     assert lines[0].startswith("unit run: [") and lines[-1].startswith("unit run: [")
     assert "t = 5.0 / 5 s (100 %)" in lines[-1]
+
+
+def test_a_run_past_its_estimated_total_says_so(clock):
+    log = io.StringIO()
+    lines = Progress("dem pile", 12.5, stream=log)
+    clock.now += 2.0
+    lines.update(13.0, force=True)
+    assert "t = 13.0 s (estimated 12.5 s)" in log.getvalue() and "ETA" not in log.getvalue()

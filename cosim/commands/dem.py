@@ -146,7 +146,8 @@ def run_pile(args) -> int:
         dem = packed_pile(cfg, args.particles, seed=args.seed)
     from surrogate.dem.emitter import mean_particle_mass
 
-    # the longest it can take: the fill (whole lots), then the whole settling time
+    # the expected end: the fill (its lots estimated from the mean particle mass),
+    # then the whole settling time (settling may stop earlier)
     lots = math.ceil(args.particles * mean_particle_mass(cfg) / args.lot_kg)
     longest = (lots * args.lot_interval if args.method == "pour" else 0.0) + args.settle_time
     counter = _Counter(Progress(sys.stderr, "dem pile", total=dem.time + longest), dem)
