@@ -133,13 +133,14 @@ def test_integration_figures_show_every_source(figures, tmp_path):
 
     rows = [{"time_s": float(k), "held_mass_kg": 1e3 * k, "grade": 0.2} for k in range(10)]
     log = [{"time_s": float(k), "by_source": {"0": 500.0}} for k in range(5, 10)]
-    ledger = {"outflow_log": log, "delivered_by_source": {"0": 5e3, "1": 3e3}}
+    ledger = {"outflow_log": log, "delivered_by_source": {"0": 5e3, "1": 3e3}, "time_s": 10.0}
     _plots(tmp_path, ledger, {"history": rows, "model": "fifo"})
     _check(figures, ["stockpile_mass_grade.png", "cv301_composition.png"],
            run="storage model fifo")
     texts = [t.get_text() for t in
              figures["cv301_composition.png"][2].axes[0].get_legend().get_texts()]
     assert texts == ["source 0: 2.5 t", "source 1: 0.0 t"]
+    assert figures["cv301_composition.png"][2].axes[0].get_xlim() == (0.0, 10.0)
 
 
 def test_grindability_figures_explain_the_bwi_scale(figures, tmp_path):

@@ -221,6 +221,7 @@ def _plots(out: Path, ledger: dict, summary: dict) -> list[str]:
                      labels=[f"source {s}: {cumulative[-1, j]:.1f} t" for j, s in
                              enumerate(sources)])
         plotstyle.legend(ax, loc="upper left")
+    ax.set_xlim(0.0, max(float(ledger.get("time_s", 0.0)), 1.0))  # the whole run, not the outflow
     ax.set_xlabel("simulation time [s]")
     ax.set_ylabel("mass loaded onto CV301 [t]")
     plotstyle.title(fig, "Outgoing belt CV301: composition by source (cumulative, stacked)", run)
