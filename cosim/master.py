@@ -122,11 +122,13 @@ class Master:
         Communication step [s], default 0.5.
     record_every : int
         Record outputs every this many steps (default 1: every step).
-    progress : bool
-        Print a progress line to stderr during ``run`` (default True).
+    progress : bool or str
+        Report progress on stderr during ``run`` (``cosim.progress``), default
+        True; a string is the label of the progress lines (default "simulate").
     """
 
-    def __init__(self, step: float = 0.5, *, record_every: int = 1, progress: bool = True):
+    def __init__(self, step: float = 0.5, *, record_every: int = 1,
+                 progress: bool | str = True):
         if not (np.isfinite(step) and step > 0):
             raise ValidationError("step", "finite and > 0 s", f"got {step!r}")
         if int(record_every) < 1:
@@ -180,7 +182,12 @@ class Master:
                                   f"got {until!r}")
         first = self._steps_done
         start = wallclock.perf_counter()
-        last_report = start
+        report = None
+        if self.progress:
+            from cosim.progress import Progress
+
+            report = Progress(self.progress if isinstance(self.progress, str) else "simulate",
+                              until)
         latest = {id(c): c.outputs() for c in self.components}
         inputs = [(c, [(conn.input, id(conn.source), conn.output, conn.source.name)
                        for conn in self._by_target.get(id(c), ())])
@@ -216,15 +223,12 @@ class Master:
                     break
                 if self._steps_done % self.record_every == 0:
                     record(self.time, self.components, latest)
-                if self.progress:
-                    now = wallclock.perf_counter()
-                    if now - last_report > 1.0 or k == first + n_steps - 1:
-                        last_report = now
-                        self._report(until, now - start)
+                if report is not None:
+                    report.update(self.time)
         finally:
             self.wall_s += wallclock.perf_counter() - start
-            if self.progress:
-                print(file=sys.stderr)
+            if report is not None:
+                report.close()
         return self
 
     def _stop(self, components, t: float, latest) -> None:
@@ -245,13 +249,6 @@ class Master:
         """Let every component release its resources (FMU instances, files)."""
         for component in self.components:
             component.finish()
-
-    def _report(self, until: float, elapsed: float) -> None:
-        fraction = self.time / until if until > 0 else 1.0
-        factor = (self.time / elapsed) if elapsed > 0 else float("inf")
-        bar = "#" * int(30 * fraction)
-        print(f"\r[{bar:<30}] t = {self.time:8.1f} / {until:.0f} s  "
-              f"({factor:,.0f}x real time)", end="", file=sys.stderr, flush=True)
 
     @property
     def timeseries(self):

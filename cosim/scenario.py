@@ -634,11 +634,12 @@ def summarize(simulation: Simulation) -> dict:
     return summary
 
 
-def write_outputs(simulation: Simulation, out_dir, failure=None) -> dict:
+def write_outputs(simulation: Simulation, out_dir, failure=None,
+                  scenario_name: str | None = None) -> dict:
     """Write timeseries.parquet, summary.json and PNG plots to ``out_dir``; the summary.
 
     After a failed run (``failure``) they hold what was recorded up to it, and the
-    summary's ``failed`` says why."""
+    summary's ``failed`` says why. ``scenario_name`` titles the figures."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     series = simulation.timeseries
@@ -646,45 +647,60 @@ def write_outputs(simulation: Simulation, out_dir, failure=None) -> dict:
     summary = summarize(simulation)
     summary["failed"] = None if failure is None else str(failure)
     jsonio.write(out / "summary.json", summary, indent=2, sort_keys=True)
-    plot_overview(series, out / "overview.png")
+    from cosim.plotstyle import run_label
+
+    plot_overview(series, out / "overview.png",
+                  run=run_label(simulation.config, scenario=scenario_name))
     return summary
 
 
-def plot_overview(series, path) -> None:
-    """Four panels: crusher power and zone hardness, stockpile mass, mill power and hardness."""
-    import matplotlib
+def plot_overview(series, path, run: str | None = None) -> None:
+    """Four panels: crusher power and zone hardness, stockpile mass, mill power and
+    hardness; titled with ``run`` (``cosim.plotstyle.run_label``)."""
+    from cosim import plotstyle
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = plotstyle.pyplot()
     t = series.index.to_numpy()
-    fig, axes = plt.subplots(4, 1, figsize=(9, 10), sharex=True)
+    fig, axes = plt.subplots(4, 1, figsize=(9, 10.5), sharex=True)
     panels = [
-        (axes[0], "crusher_fmu.power", 1e-3, "crusher power [kW]"),
-        (axes[1], "crusher.zone_hardness_avg", 1.0, "crusher zone hardness [-] (30 s avg)"),
-        (axes[2], "stockpile.mass_kg", 1e-3, "stockpile mass [t]"),
-        (axes[3], "mill_fmu.power", 1e-6, "mill power [MW]"),
+        (axes[0], "crusher_fmu.power", 1e-3, "crusher power [kW]", "crusher power"),
+        (axes[1], "crusher.zone_hardness_avg", 1.0, "crusher zone hardness [-]",
+         "crusher zone hardness (30 s average)"),
+        (axes[2], "stockpile.mass_kg", 1e-3, "stockpile mass [t]", "stockpile mass"),
+        (axes[3], "mill_fmu.power", 1e-6, "mill power [MW]", "mill power"),
     ]
-    for ax, column, scale, label in panels:
+    for ax, column, scale, label, name in panels:
         if column in series:
-            ax.plot(t, series[column].to_numpy() * scale, lw=0.8)
+            ax.plot(t, series[column].to_numpy() * scale, lw=0.8, label=name)
         ax.set_ylabel(label)
-        ax.grid(alpha=0.3)
+    for ax in axes[1:3]:
+        plotstyle.legend(ax, loc="upper left")
+    # hardness is relative to the reference ore (1): a span of at least 0.5
+    # keeps a rise of a few parts per thousand from filling the axis
+    plotstyle.span_at_least(axes[1], series.get("crusher.zone_hardness_avg", []), 0.5)
+    twins = []
     if "mill.hardness_avg" in series:
         twin = axes[3].twinx()
-        twin.plot(t, series["mill.hardness_avg"].to_numpy(), color="tab:red", lw=0.8)
-        twin.set_ylabel("mill hardness [-] (30 s avg)", color="tab:red")
-        # hardness is read against 1 (the reference ore); an offset label hides that
+        twin.grid(False)
+        hardness = series["mill.hardness_avg"].to_numpy()
+        twin.plot(t, hardness, color="tab:red", lw=0.8,
+                  label="mill hardness (30 s average, right axis)")
+        twin.set_ylabel("mill hardness [-]", color="tab:red")
         twin.ticklabel_format(axis="y", useOffset=False)
+        plotstyle.span_at_least(twin, hardness, 0.5)
+        twins.append(twin)
+    plotstyle.legend(axes[0], loc="upper left")
+    plotstyle.legend(axes[3], *twins, loc="upper left")
     axes[-1].set_xlabel("time [s]")
+    plotstyle.title(fig, "Mine-to-mill overview", run)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    plotstyle.save(fig, path)
 
 
 def run_scenario(config: dict, out_dir=None, *, until: float | None = None,
                  seed: int | None = None, storage_model: str | None = None,
-                 progress: bool = False, before_run=None) -> tuple[Simulation, dict]:
+                 progress: bool = False, before_run=None,
+                 scenario_name: str | None = None) -> tuple[Simulation, dict]:
     """Build, run and (with ``out_dir``) write a scenario; returns (simulation, summary).
 
     ``before_run`` is called with the built ``Simulation`` before it runs
@@ -715,7 +731,8 @@ def run_scenario(config: dict, out_dir=None, *, until: float | None = None,
         except CosimulationError as exc:  # e.g. the event store: the other outputs still count
             failure = failure or exc
     simulation.master.wall_s = wallclock.perf_counter() - started
-    summary = (write_outputs(simulation, out_dir, failure=failure) if out_dir is not None
+    summary = (write_outputs(simulation, out_dir, failure=failure, scenario_name=scenario_name)
+               if out_dir is not None
                else summarize(simulation))
     if failure is not None:
         raise failure

@@ -87,11 +87,9 @@ def study(steps, horizon: float = 4.0, fine_step: float = 1e-5, progress=None) -
 
 
 def plot(result: dict, path: Path) -> None:
-    import matplotlib
+    from cosim import plotstyle
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = plotstyle.pyplot()
     steps = np.array(result["steps_s"])
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
     for method, style, label in (("explicit", "o-", "explicit (paper)"),
@@ -108,14 +106,14 @@ def plot(result: dict, path: Path) -> None:
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("communication step dt [s]")
-    ax.set_ylabel("size-distribution error (L1 of class masses / mass)")
-    ax.set_title(f"Mill population balance after {result['horizon_s']:g} s vs fine-step "
-                 f"reference ({result['fine_step_s'] * 1e6:.0f} us)", fontsize=9)
+    ax.set_ylabel("size-distribution error, L1 of class masses / mass [-]")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
+    plotstyle.title(fig, f"Mill population balance after {result['horizon_s']:g} s vs "
+                    f"fine-step reference ({result['fine_step_s'] * 1e6:.0f} us)",
+                    "mill FMU alone (no scenario, no seed: deterministic)")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    plotstyle.save(fig, path, dpi=120)
 
 
 def main(argv=None) -> int:

@@ -4,10 +4,16 @@ Starts two real processes on 127.0.0.1: a stockpile serving its REST
 interface (``python -m monitor.demo_stockpile``, or any stockpile URL given
 with ``--stockpile``) and the monitor (``minetwin monitor``); lets the
 simulation run, then opens the page in Debian's chromium (Playwright) and
-saves ``OUT/monitor.png`` (coloured by grade) and ``OUT/monitor_origin.png``
-(coloured by origin). Everything is stopped at the end.
+saves ``OUT/monitor.png`` (coloured by grade), ``OUT/monitor_origin.png``
+(coloured by origin) and ``OUT/monitor_zoomed.png`` (the trends zoomed to
+the middle third of the run by dragging across the held-mass trend).
+Everything is stopped at the end. With ``--scenario`` the stockpile is the
+mine simulator's (``demo_stockpile --scenario``), e.g. the paper-scale
+2,000 t pile of ``examples/paper_scale.toml``.
 
     .venv/bin/python examples/monitor_demo.py --out out/monitor [--seconds 20]
+    .venv/bin/python examples/monitor_demo.py --out out/monitor_paper \
+        --scenario examples/paper_scale.toml --speed 25
 """
 
 from __future__ import annotations
@@ -52,6 +58,9 @@ def main(argv=None) -> int:
     parser.add_argument("--speed", type=float, default=6.0,
                         help="simulated seconds per wall second of the demo stockpile")
     parser.add_argument("--stockpile", help="use a running stockpile at this URL instead")
+    parser.add_argument("--scenario", type=Path,
+                        help="serve this mine-simulator scenario's stockpile instead of the "
+                             "integration test's")
     args = parser.parse_args(argv)
     if not Path(CHROMIUM).exists():
         print(f"monitor_demo: error: {CHROMIUM} missing (apt-get install chromium)",
@@ -64,9 +73,10 @@ def main(argv=None) -> int:
     try:
         url = args.stockpile
         if url is None:
+            scenario = ["--scenario", str(args.scenario)] if args.scenario else []
             stockpile, url = start([sys.executable, "-m", "monitor.demo_stockpile", "--port", "0",
-                                    "--speed", str(args.speed)], r"http://127\.0\.0\.1:\d+",
-                                   "stdout")
+                                    "--speed", str(args.speed), *scenario],
+                                   r"http://127\.0\.0\.1:\d+", "stdout")
             processes.append(stockpile)
         minetwin = str(Path(sys.executable).with_name("minetwin"))
         monitor, page_url = start([minetwin, "monitor", "--stockpile", url, "--port", "0"],
@@ -82,12 +92,21 @@ def main(argv=None) -> int:
             page.screenshot(path=str(args.out / "monitor.png"), full_page=True)
             page.select_option("#colour-by", "origin")
             page.screenshot(path=str(args.out / "monitor_origin.png"), full_page=True)
+            over = page.locator("#trend-mass .u-over").bounding_box()
+            middle = over["y"] + over["height"] / 2
+            page.mouse.move(over["x"] + over["width"] / 3, middle)
+            page.mouse.down()
+            page.mouse.move(over["x"] + 2 * over["width"] / 3, middle, steps=8)
+            page.mouse.up()
+            page.wait_for_function("window.monitorState.zoom !== null", timeout=5_000)
+            page.screenshot(path=str(args.out / "monitor_zoomed.png"), full_page=True)
             shown = page.evaluate("[document.getElementById('held-mass').textContent, "
                                   "document.getElementById('grade').textContent]")
             browser.close()
         print(f"held mass {shown[0]} t, grade {shown[1]} %")
         print(args.out / "monitor.png")
         print(args.out / "monitor_origin.png")
+        print(args.out / "monitor_zoomed.png")
     finally:
         for proc in processes:
             stop(proc)

@@ -89,13 +89,10 @@ def rom_models(ev, data):
 def plot_ladder(result: dict, path) -> None:
     """The speed-vs-accuracy chart of ``result`` (the ``speed_vs_accuracy.json``
     content) as a PNG at ``path``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from cosim import plotstyle
     from surrogate.rom import doe
 
+    plt = plotstyle.pyplot()
     points, floor = result["points"], result["dem_noise_floor"]
     fine_wall = result["reference_wall_s_per_simulated_s"]
     reference_factor = result["reference_dt_factor"]
@@ -114,6 +111,9 @@ def plot_ladder(result: dict, path) -> None:
     # too close for a label per point: one line each, and a list (setting: error)
     # beside it
     stable_dem = [p for p in points if p["kind"] == "dem" and not p.get("unstable")]
+    legend_of = {"rom_dem": "ROM, surface layer by DEM (POD modes, * cross-validated)",
+                 "rom_rule": "ROM, surface layer by sandpile rule",
+                 "dem": "DEM at a time step (x stable_dt)"}
     families = (
         ("rom_dem", "o", 1, "modes: error", lambda p: p["modes"],
          lambda p: "/".join(str(m) for m in dict.fromkeys(p["modes"]))
@@ -130,7 +130,8 @@ def plot_ladder(result: dict, path) -> None:
             continue
         x = [p["wall_s_per_simulated_s"] for p in family]
         y = [p["tracking_error"] for p in family]
-        ax.plot(x, y, color=colours[kind], marker=marker, lw=0.8, ms=6, zorder=3)
+        ax.plot(x, y, color=colours[kind], marker=marker, lw=0.8, ms=6, zorder=3,
+                label=legend_of[kind])
         rows = [f"{name(p)}: {p['tracking_error']:.2f}" for p in family]
         anchor = (max(x) if side > 0 else min(x), float(np.mean(y)))
         ax.annotate(f"{title}\n" + "\n".join(rows), anchor, textcoords="offset points",
@@ -149,30 +150,24 @@ def plot_ladder(result: dict, path) -> None:
                     fontsize=7, arrowprops={"arrowstyle": "-", "lw": 0.5, "color": "grey"})
     ax.scatter(fine_wall, 0.0, color=colours["dem"], marker="*", s=90, zorder=3,
                label=f"reference: DEM dt = {reference_factor:g} stable_dt")
-    ax.scatter([], [], color=colours["rom_dem"],
-               label="ROM, surface layer by DEM (POD modes, * cross-validated)")
-    ax.scatter([], [], color=colours["rom_rule"], marker="s",
-               label="ROM, surface layer by sandpile rule")
-    ax.scatter([], [], color=colours["dem"], label="DEM at a time step (x stable_dt)")
     ax.scatter([], [], color=colours["dem"], marker="x",
                label="DEM blown up (forced step): cost reached")
     ax.axhline(floor, color="grey", ls="--", lw=1,
                label=f"DEM chaos floor (1e-6 m perturbation): {floor:.2f}")
     ax.axhline(0.10, color="black", ls=":", lw=1, label="target 0.10")
-    ax.axhline(1.0, color="grey", ls="-", lw=0.5)
-    ax.axvline(1.0, color="grey", ls="-", lw=0.5)
+    ax.axhline(1.0, color="grey", ls="-", lw=0.5, label="error 1: nothing tracked")
+    ax.axvline(1.0, color="grey", ls="-", lw=0.5, label="real time")
     ax.set_xscale("log")
     ax.set_ylim(-0.02, top + 0.04)
-    ax.set_xlabel("wall seconds per simulated second (one core; 1 = real time)")
-    ax.set_ylabel("tracking error vs fine-step DEM (mean TV distance, 30 s windows)")
-    ax.set_title("Stockpile fidelity ladder: what each second of compute buys\n"
-                 f"(held-out {scenario.duration:g} s, {scenario.fill / 1e3:g} t pile, "
-                 f"{scenario.inflow_rate:g} kg/s in, {scenario.discharge_rate:g} kg/s out)",
-                 fontsize=10)
+    ax.set_xlabel("wall time per simulated time, one core [s/s] (1 = real time)")
+    ax.set_ylabel("tracking error vs fine-step DEM, mean TV distance over 30 s windows [-]")
+    plotstyle.title(fig, "Stockpile fidelity ladder: what each second of compute buys",
+                    f"held-out scenario {result['scenario']} ({scenario.duration:g} s, "
+                    f"{scenario.fill / 1e3:g} t pile, {scenario.inflow_rate:g} kg/s in, "
+                    f"{scenario.discharge_rate:g} kg/s out), storage models as in the legend")
     ax.legend(loc="center right", fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
+    plotstyle.save(fig, path, dpi=130)
 
 
 def main(argv=None) -> int:
@@ -200,11 +195,7 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from cosim import plotstyle
     from surrogate.rom import evaluate as ev
     from surrogate.rom import metrics
 
@@ -287,7 +278,7 @@ def main(argv=None) -> int:
     rows = {"DEM": {"mass": dem["field_mass"][k], "velocity": dem["field_velocity"][k],
                     "grade": dem["field_grade"][k], "hardness": dem["field_hardness"][k]},
             "ROM": captured}
-    fig, axes = plt.subplots(2, 3, figsize=(13, 5.2), sharex=True, sharey=True)
+    fig, axes = plotstyle.pyplot().subplots(2, 3, figsize=(13, 5.2), sharex=True, sharey=True)
     for r, (name, f) in enumerate(rows.items()):
         empty = f["mass"] <= 0
         speed = np.where(empty, np.nan, np.linalg.norm(f["velocity"], axis=-1))
@@ -304,14 +295,14 @@ def main(argv=None) -> int:
                 v = np.where(empty[..., None], np.nan, f["velocity"])
                 ax.quiver(x, y, v[..., 0], v[..., 1], color="white", scale=8, width=0.002)
             ax.set_title(f"{name}: {title}", fontsize=9)
-            fig.colorbar(im, ax=ax, shrink=0.7)
+            fig.colorbar(im, ax=ax, shrink=0.7, label=title)
     axes[1, 0].set_xlabel("x [m]")
     axes[1, 0].set_ylabel("y [m]")
-    fig.suptitle(f"Pile fields at t = {k} s of the held-out run {args.scenario} "
-                 "(the funnel zone drains in the near future)")
+    plotstyle.title(fig, f"Pile fields at t = {k} s (the funnel zone drains in the near "
+                    "future)", f"held-out scenario {args.scenario}, storage models DEM and "
+                    "ROM (default modes)")
     fig.tight_layout()
-    fig.savefig(out / "pile_fields.png", dpi=120)
-    plt.close(fig)
+    plotstyle.save(fig, out / "pile_fields.png", dpi=120)
     progress(f"wrote {out / 'speed_vs_accuracy.png'} and {out / 'pile_fields.png'}")
     return 0
 

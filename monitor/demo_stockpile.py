@@ -58,6 +58,11 @@ class DemoFeed:
     discharge_start_s: float = 0.0
     discharge_rate_kg_s: float = 1000.0
 
+    def source_names(self) -> dict:
+        """Display names of the two sources: the ore body and its grade in %."""
+        return {k: f"ore body {'AB'[k]} ({100 * g:.0f} % grade)"
+                for k, g in enumerate(self.source_grades)}
+
     def deliver(self, asset, rng, t0: float, t1: float, next_tracking_id: int) -> int:
         """Hand the asset the bins due in (t0, t1]; returns the next tracking id."""
         first = int(np.floor(t0 / self.bin_interval_s)) + 1
@@ -78,8 +83,8 @@ async def run(port: int, host: str, speed: float, dt: float, model: str, seed: i
     from surrogate.rest import start_rest
     from surrogate.stockpile import StockpileAsset
 
-    asset = StockpileAsset(model, seed=seed)
     feed = DemoFeed()
+    asset = StockpileAsset(model, seed=seed, source_names=feed.source_names())
     rng = np.random.default_rng(seed)
     runner, actual = await start_rest(asset, host, port)
     print(f"stockpile REST on http://{host}:{actual}", flush=True)

@@ -18,6 +18,14 @@ stockpile_url : str
 timeout_s : float
     Time [s] the proxy waits for the stockpile before calling it
     unreachable, default 3.
+config : dict or None
+    Capacity and alarm limits (``monitor.config``), served to the page at
+    ``/monitor/config``; default ``monitor.config.DEFAULTS``.
+
+The page draws its trends with uPlot (MIT licence,
+``static/vendor/uPlot.LICENSE``), served from ``/static/vendor/`` like the
+page's own files; ``make monitor-vendor`` copies it there from the version
+pinned in ``monitor/package.json``.
 """
 
 from __future__ import annotations
@@ -30,12 +38,16 @@ import aiohttp
 from aiohttp import web
 
 from cosim.errors import ValidationError
+from monitor.config import load_monitor_config
 
 PROXIED_ENDPOINTS = ("health", "totals", "history", "fields", "particles", "feed",
-                     "openapi.json")
+                     "events", "openapi.json")
 """Stockpile endpoints the page may read through the monitor."""
 
-STATIC_FILES = {"monitor.js": "application/javascript", "monitor.css": "text/css"}
+STATIC_FILES = {"monitor.js": "application/javascript", "monitor.css": "text/css",
+                "vendor/uPlot.iife.min.js": "application/javascript",
+                "vendor/uPlot.min.css": "text/css",
+                "vendor/uPlot.LICENSE": "text/plain"}
 """Files served under ``/static/`` (all the page needs: no external network)."""
 
 
@@ -49,12 +61,14 @@ def check_stockpile_url(url: str) -> str:
 
 
 def _asset(name: str) -> bytes:
-    return importlib.resources.files("monitor").joinpath("static", name).read_bytes()
+    return importlib.resources.files("monitor").joinpath("static", *name.split("/")).read_bytes()
 
 
-def create_monitor_app(stockpile_url: str, timeout_s: float = 3.0) -> web.Application:
+def create_monitor_app(stockpile_url: str, timeout_s: float = 3.0,
+                       config: dict | None = None) -> web.Application:
     """aiohttp application of the monitor for the stockpile at ``stockpile_url``."""
     stockpile_url = check_stockpile_url(stockpile_url)
+    config = load_monitor_config() if config is None else config
     app = web.Application()
     pages = {name: _asset(name) for name in ("index.html", *STATIC_FILES)}
 
@@ -72,6 +86,8 @@ def create_monitor_app(stockpile_url: str, timeout_s: float = 3.0) -> web.Applic
 
     async def static(request):
         name = request.match_info["name"]
+        if "vendor" in request.match_info:
+            name = "vendor/" + name
         if name not in STATIC_FILES:
             raise web.HTTPNotFound()
         return web.Response(body=pages[name], content_type=STATIC_FILES[name],
@@ -79,6 +95,9 @@ def create_monitor_app(stockpile_url: str, timeout_s: float = 3.0) -> web.Applic
 
     async def own_health(request):
         return web.json_response({"status": "ok", "stockpile": stockpile_url})
+
+    async def own_config(request):
+        return web.json_response(config, headers={"Cache-Control": "no-store"})
 
     async def proxy(request):
         endpoint = request.match_info["endpoint"]
@@ -100,14 +119,17 @@ def create_monitor_app(stockpile_url: str, timeout_s: float = 3.0) -> web.Applic
 
     app.router.add_get("/", index)
     app.router.add_get("/static/{name}", static)
+    app.router.add_get("/static/{vendor:vendor}/{name}", static)
     app.router.add_get("/monitor/health", own_health)
+    app.router.add_get("/monitor/config", own_config)
     app.router.add_get("/api/{endpoint}", proxy)
     return app
 
 
-async def serve_monitor(stockpile_url: str, host: str = "127.0.0.1", port: int = 0):
+async def serve_monitor(stockpile_url: str, host: str = "127.0.0.1", port: int = 0,
+                        config: dict | None = None):
     """Start the monitor in the running loop; returns ``(runner, actual_port)``."""
-    runner = web.AppRunner(create_monitor_app(stockpile_url), access_log=None)
+    runner = web.AppRunner(create_monitor_app(stockpile_url, config=config), access_log=None)
     await runner.setup()
     site = web.TCPSite(runner, host, port)
     await site.start()

@@ -13,9 +13,12 @@ Two parts:
     serves the *stockpile protocol* for any ``cosim.storage.StorageModel``
     bound to a ``ParticleStore`` (FIFO, mixing, ROM, DEM): ``time``,
     ``discharge_rate``, ``totals()``, ``history(since)``, ``fields(nx, ny)``,
-    ``particle_table(limit, offset)``, ``predicted_feed(horizon_s)``. The
-    owner of the storage calls ``record()`` after each step to extend the
-    time series.
+    ``particle_table(limit, offset)``, ``predicted_feed(horizon_s)``,
+    ``events(since)``, ``layout`` and ``origin_names()``. The owner of the
+    storage calls ``record()`` after each step to extend the time series;
+    ``record`` also compares the particles held with the previous call's to
+    find the lots in and out (``surrogate.lots``) and the actual discharge
+    rate (mass that left over the trailing 30 s, ``surrogate.lots.DischargeRate``).
 ``RestComponent.attach(master, particles, storage, discharge_rate)``
     serves a storage asset of a running co-simulation master (the mine
     simulator), optionally paced to real time.
@@ -52,9 +55,10 @@ from cosim.jsonio import plain as to_json
 from cosim.master import Component
 from cosim.sensors import observe
 from cosim.sizes import d_passing
+from surrogate.lots import ACTUAL_RATE_WINDOW_S, DischargeRate, LotLog
 
 TOTALS_KEYS = ("time_s", "held_mass_kg", "grade", "hardness", "d80_m", "particle_count",
-               "discharge_rate_kg_s")
+               "discharge_rate_kg_s", "discharge_actual_kg_s")
 """Fields of a totals row (``/totals`` and each ``/history`` row)."""
 
 FIELD_NAMES = ("mass", "grade", "hardness", "residence_time", "velocity")
@@ -74,6 +78,9 @@ MAX_PARTICLES_PAGE = 50_000
 
 MAX_STRIDE = 1000
 """Largest thinning step of ``/particles``."""
+
+MAX_EVENTS_PAGE = 5000
+"""Largest number of events ``/events`` returns (the oldest after ``since``)."""
 
 MAX_HORIZON_S = 3600.0
 """Longest feed prediction [s]."""
@@ -109,6 +116,10 @@ class StorageView:
         self._rate = discharge_rate
         self._history: deque = deque(maxlen=int(history_limit))
         self.display_radius_m = float(display_radius_m)
+        self.lots = LotLog()
+        self.discharge_actual = 0.0
+        self._held = None  # (time, sorted ids, mass, grade, tracking) at the last record
+        self._actual = None
 
     @property
     def time(self) -> float:
@@ -135,9 +146,69 @@ class StorageView:
         return (slots, *schematic_layout(order, float(store.mass[slots].sum()),
                                          self.discharge_rate, self.display_radius_m))
 
+    @property
+    def layout(self) -> str:
+        """``particles`` (the model's own positions) or ``schematic``."""
+        return "particles" if getattr(self.storage, "has_geometry", False) else "schematic"
+
+    def origin_names(self) -> dict:
+        """Display name per origin value (x of the position of origin [m])
+        of the particles held: left, right or centre of the mine, with x."""
+        store = self.particles
+        origins = np.unique(store.origin[self._held_slots(), 0])
+        if origins.size > 12:
+            return {}
+        middle = 0.5 * (origins.min() + origins.max()) if origins.size else 0.0
+        span = float(np.ptp(origins)) if origins.size else 0.0
+
+        def side(x):
+            if span == 0 or abs(x - middle) < 0.05 * span:
+                return "centre"
+            return "left" if x < middle else "right"
+        return {float(x): f"{side(x)} source (x = {x:g} m)" for x in origins}
+
+    def events(self, since: int = 0) -> list[dict]:
+        """Lots in and out with ``seq > since`` (``surrogate.lots``)."""
+        return self.lots.since(since)
+
+    def _track_lots(self, time_s: float) -> None:
+        """Lots in and out since the last call, and the actual discharge rate:
+        the particles held now against those held then. A lot is the
+        particles of one tracking id (the ``tracking_id`` attribute), or of
+        one step when the store has none."""
+        store = self.particles
+        slots = self._held_slots()
+        order = np.argsort(store.id[slots], kind="stable")
+        slots = slots[order]
+        tracking = (store.attribute("tracking_id")[slots].astype(np.int64)
+                    if "tracking_id" in store.attribute_names else None)
+        now = (time_s, store.id[slots], store.mass[slots], store.grade[slots], tracking)
+        before, self._held = self._held, now
+        if before is None:
+            self._actual = DischargeRate(time_s)
+            return
+        ids0, mass0 = before[1], before[2]
+        left = ~np.isin(ids0, now[1], assume_unique=True)
+        entered = ~np.isin(now[1], ids0, assume_unique=True)
+        self.discharge_actual = self._actual.add(time_s, float(mass0[left].sum()))
+        for kind, mask, (_, _, mass, grade, tid) in (("in", entered, now),
+                                                     ("out", left, before)):
+            if not mask.any():
+                continue
+            if tid is None:
+                keys, inverse = np.array([None]), np.zeros(int(mask.sum()), dtype=np.int64)
+            else:
+                keys, inverse = np.unique(tid[mask], return_inverse=True)
+            lot_mass = np.bincount(inverse, weights=mass[mask], minlength=keys.size)
+            lot_grade = np.bincount(inverse, weights=mass[mask] * grade[mask],
+                                    minlength=keys.size) / np.maximum(lot_mass, 1e-300)
+            self.lots.add(kind, time_s, keys, lot_mass, lot_grade, [None] * keys.size,
+                          np.bincount(inverse, minlength=keys.size))
+
     def totals(self) -> dict:
         """Held mass [kg], mass-weighted grade and hardness, D80 [m], count,
-        discharge rate [kg/s] and time [s]; NaN averages when empty."""
+        discharge setpoint and actual rate [kg/s] and time [s]; NaN averages
+        when empty."""
         slots = self._held_slots()
         store = self.particles
         f = observe(store, "f", slots=slots)
@@ -149,13 +220,17 @@ class StorageView:
             "d80_m": float("nan") if np.isnan(f).any() else float(d_passing(f, 0.8)),
             "particle_count": int(slots.size),
             "discharge_rate_kg_s": self.discharge_rate,
+            "discharge_actual_kg_s": self.discharge_actual,
         }
 
     def record(self) -> dict:
         """Append the current totals to the time series (call after each step)."""
-        row = self.totals()
-        if self._history and row["time_s"] < self._history[-1]["time_s"]:
+        time_s = self.time
+        if self._history and time_s < self._history[-1]["time_s"]:
             self._history.clear()  # the clock went back: a new run
+            self._held = None
+        self._track_lots(time_s)
+        row = self.totals()
         self._history.append(row)
         return row
 
@@ -324,6 +399,7 @@ def create_app(asset, lock=None) -> web.Application:
         wanted = _field_list(request.query.get("field"))
         grid = read(asset.fields, nx, ny)
         out = {"nx": nx, "ny": ny, "time_s": read(lambda: asset.time),
+               "layout": read(lambda: asset.layout),
                "x_edges": grid["x_edges"], "y_edges": grid["y_edges"]}
         for name in wanted:
             for key in (("vx", "vy") if name == "velocity" else (name,)):
@@ -338,8 +414,20 @@ def create_app(asset, lock=None) -> web.Application:
         if stride > 1:  # thinned: every stride-th row of the page
             table = {key: value[::stride] if isinstance(value, np.ndarray) else value
                      for key, value in table.items()}
-        return web.json_response(to_json({"limit": limit, "offset": offset, "stride": stride,
-                                          "time_s": read(lambda: asset.time), **table}))
+        names = read(asset.origin_names)
+        return web.json_response(to_json({
+            "limit": limit, "offset": offset, "stride": stride,
+            "time_s": read(lambda: asset.time), "layout": read(lambda: asset.layout),
+            "origin_names": [{"origin": value, "name": name} for value, name in names.items()],
+            **table}))
+
+    async def events(request):
+        since = _query_number(request, "since", 0, 0, 2**53, integer=True)
+        limit = _query_number(request, "limit", MAX_EVENTS_PAGE, 1, MAX_EVENTS_PAGE,
+                              integer=True)
+        rows, last = read(lambda: (asset.events(since), asset.lots.last_seq))
+        return web.json_response(to_json({"since": since, "last_seq": last,
+                                          "events": rows[:limit]}))
 
     async def feed(request):
         horizon = _query_number(request, "horizon", 30.0, 0.0, MAX_HORIZON_S, low_open=True)
@@ -352,26 +440,28 @@ def create_app(asset, lock=None) -> web.Application:
 
     for path, handler in (("/health", health), ("/totals", totals), ("/history", history),
                           ("/fields", fields), ("/particles", particles), ("/feed", feed),
-                          ("/openapi.json", openapi)):
+                          ("/events", events), ("/openapi.json", openapi)):
         app.router.add_get(path, handler)
     return app
 
 
 def _feed_with_profile(asset, horizon: float) -> tuple[dict, dict]:
     """The asset's predicted feed for ``horizon`` [s], and per interval of
-    horizon / FEED_PROFILE_INTERVALS the mass [kg] and grade predicted to
-    leave in it (differences of the cumulative predictions)."""
+    horizon / FEED_PROFILE_INTERVALS the mass [kg], grade and hardness
+    predicted to leave in it (differences of the cumulative predictions)."""
     ends = np.linspace(0.0, horizon, FEED_PROFILE_INTERVALS + 1)[1:]
     cumulative = [asset.predicted_feed(float(h)) for h in ends]
     mass = np.array([feed["mass_kg"] for feed in cumulative])
-    grade_mass = np.array([feed["mass_kg"] * feed["grade"] if feed["mass_kg"] > 0 else 0.0
-                           for feed in cumulative])
     interval_mass = np.diff(mass, prepend=0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        interval_grade = np.where(interval_mass > 1e-9 * max(mass[-1], 1.0),
-                                  np.diff(grade_mass, prepend=0.0) / interval_mass, np.nan)
-    return cumulative[-1], {"t_s": ends, "mass_kg": interval_mass,
-                            "grade": np.clip(interval_grade, 0.0, 1.0)}
+    profile = {"t_s": ends, "mass_kg": interval_mass}
+    for name in ("grade", "hardness"):
+        weighted = np.array([feed["mass_kg"] * feed[name] if feed["mass_kg"] > 0 else 0.0
+                             for feed in cumulative])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            profile[name] = np.where(interval_mass > 1e-9 * max(mass[-1], 1.0),
+                                     np.diff(weighted, prepend=0.0) / interval_mass, np.nan)
+    profile["grade"] = np.clip(profile["grade"], 0.0, 1.0)
+    return cumulative[-1], profile
 
 
 def _field_list(raw: str | None) -> list[str]:
@@ -565,7 +655,31 @@ _TOTALS = {
         "d80_m": {**_NUM, "description": "80 % passing size [m]"},
         "particle_count": {"type": "integer", "minimum": 0},
         "discharge_rate_kg_s": {"type": "number", "minimum": 0,
-                                "description": "feeder rate [kg/s]"},
+                                "description": "feeder rate setpoint [kg/s]"},
+        "discharge_actual_kg_s": {"type": "number", "minimum": 0,
+                                  "description": "actual discharge rate [kg/s]: mass that left "
+                                                 f"in the trailing {ACTUAL_RATE_WINDOW_S:g} s "
+                                                 "over that window (over the run while it is "
+                                                 "younger)"},
+    },
+}
+_LAYOUT = {"type": "string", "enum": ["schematic", "particles"],
+           "description": "schematic: positions show the order of leaving of a storage "
+                          "without geometry (FIFO, mixing); particles: the model's positions"}
+_EVENT = {
+    "type": "object",
+    "required": ["seq", "time_s", "kind", "tracking_id", "mass_kg", "grade", "source",
+                 "particle_count"],
+    "properties": {
+        "seq": {"type": "integer", "minimum": 1, "description": "event number, 1, 2, ..."},
+        "time_s": {"type": "number", "description": "simulation time [s]"},
+        "kind": {"type": "string", "enum": ["in", "out"],
+                 "description": "in: a lot received; out: (part of) a lot discharged"},
+        "tracking_id": {"type": "integer", "nullable": True, "minimum": 0},
+        "mass_kg": {"type": "number", "minimum": 0, "description": "mass [kg]"},
+        "grade": {**_NUM, "description": "mass-weighted grade [-]"},
+        "source": {"type": "integer", "nullable": True, "minimum": 0},
+        "particle_count": {"type": "integer", "minimum": 0},
     },
 }
 _ERROR = {
@@ -612,7 +726,7 @@ OPENAPI = {
         "/fields": _get("spatial fields on a grid over the pile (arrays ny x nx)", {
             "type": "object", "required": ["nx", "ny", "time_s", "x_edges", "y_edges"],
             "properties": {"nx": {"type": "integer"}, "ny": {"type": "integer"},
-                           "time_s": {"type": "number"},
+                           "time_s": {"type": "number"}, "layout": _LAYOUT,
                            "x_edges": _NUM_LIST, "y_edges": _NUM_LIST,
                            "mass": _GRID, "grade": _GRID, "hardness": _GRID,
                            "residence_time": _GRID, "vx": _GRID, "vy": _GRID}},
@@ -628,7 +742,11 @@ OPENAPI = {
                          "hardness", "residence_time", "origin"],
             "properties": {"limit": {"type": "integer"}, "offset": {"type": "integer"},
                            "stride": {"type": "integer"},
-                           "time_s": {"type": "number"},
+                           "time_s": {"type": "number"}, "layout": _LAYOUT,
+                           "origin_names": {"type": "array", "items": {
+                               "type": "object", "required": ["origin", "name"],
+                               "properties": {"origin": {"type": "number"},
+                                              "name": {"type": "string"}}}},
                            "total": {"type": "integer", "minimum": 0},
                            "id": _INT_LIST, "tracking_id": _INT_LIST,
                            "x": _NUM_LIST, "y": _NUM_LIST, "grade": _NUM_LIST,
@@ -650,10 +768,21 @@ OPENAPI = {
                            "particle_count": {"type": "integer", "minimum": 0},
                            "tracking_ids": _INT_LIST,
                            "profile": {"type": "object", "properties": {
-                               "t_s": _NUM_LIST, "mass_kg": _NUM_LIST, "grade": _NUM_LIST}}}},
+                               "t_s": _NUM_LIST, "mass_kg": _NUM_LIST, "grade": _NUM_LIST,
+                               "hardness": _NUM_LIST}}}},
             [_param("horizon", {"type": "number", "exclusiveMinimum": True, "minimum": 0,
                                 "maximum": MAX_HORIZON_S},
                     "prediction horizon [s] (default 30)")]),
+        "/events": _get("macro-tracking events: lots in and out with tracking ids", {
+            "type": "object", "required": ["since", "last_seq", "events"],
+            "properties": {"since": {"type": "integer"},
+                           "last_seq": {"type": "integer", "minimum": 0,
+                                        "description": "seq of the latest event (0: none)"},
+                           "events": {"type": "array", "items": _EVENT}}},
+            [_param("since", {"type": "integer", "minimum": 0, "maximum": 2**53},
+                    "events with seq strictly greater (default 0: all kept)"),
+             _param("limit", {"type": "integer", "minimum": 1, "maximum": MAX_EVENTS_PAGE},
+                    f"at most this many events, the oldest (default {MAX_EVENTS_PAGE})")]),
         "/openapi.json": {"get": {"summary": "this document",
                                   "responses": {"200": {"description": "OpenAPI 3.0 document"}}}},
     },

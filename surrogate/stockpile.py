@@ -42,6 +42,12 @@ pile_radius_m : float
     Radius [m] of the schematic display pile, default 10.
 history_rows : int
     How many per-step totals rows ``history`` keeps, default 100000.
+source_names : dict or None
+    Display name of each source index (``{0: "ore body A"}``), shown by the
+    monitor's origin key; default None ("source N").
+event_rows : int
+    How many macro-tracking events (lots in and out) ``events`` keeps,
+    default 20000.
 """
 
 from __future__ import annotations
@@ -54,6 +60,7 @@ from cosim.errors import ValidationError, check_finite_range
 from cosim.particles import ParticleStore
 from cosim.sizes import d_passing, rosin_rammler
 from cosim.storage import check_discharge_rate, make_storage
+from surrogate.lots import DischargeRate, LotLog
 
 STOCKPILE_OWNER = 1
 """Owner index of the stockpile in its own particle store."""
@@ -77,7 +84,8 @@ class StockpileAsset:
 
     def __init__(self, model: str = "fifo", *, seed: int = 0, particle_mass_kg: float = 100.0,
                  feed_size_m: float = 0.05, pile_radius_m: float = 10.0,
-                 history_rows: int = 100_000, storage_options: dict | None = None):
+                 history_rows: int = 100_000, storage_options: dict | None = None,
+                 source_names: dict | None = None, event_rows: int = 20_000):
         self.particle_mass_kg = float(check_finite_range(
             "particle_mass_kg", particle_mass_kg, 0.0, low_open=True, unit="kg"))
         self.pile_radius_m = float(check_finite_range(
@@ -97,6 +105,10 @@ class StockpileAsset:
         self.discharge_rate = 0.0
         self.mass_in_kg = 0.0
         self.mass_out_kg = 0.0
+        self.discharge_actual = 0.0
+        self._actual = DischargeRate(self.time)
+        self.source_names = {int(k): str(v) for k, v in (source_names or {}).items()}
+        self.lots = LotLog(event_rows)
         self._history: deque[dict] = deque(maxlen=int(history_rows))
 
     # --------------------------------------------------------------- inflow
@@ -121,6 +133,8 @@ class StockpileAsset:
             tracking_id=np.uint64(tracking_id), source=int(source))
         self.storage.receive(ids, self.time)
         self.mass_in_kg += mass_kg
+        self.lots.add("in", self.time, [int(tracking_id)], [mass_kg], [float(grade)],
+                      [int(source)], [count])
         return ids
 
     # ----------------------------------------------------------------- step
@@ -139,6 +153,9 @@ class StockpileAsset:
         leaving = self.storage.step(self.time, dt, self.discharge_rate)
         self.time += dt
         outflow = self._remove(leaving)
+        self.discharge_actual = self._actual.add(self.time, float(outflow["masses"].sum()))
+        self.lots.add("out", self.time, outflow["tracking_ids"], outflow["masses"],
+                      outflow["grades"], outflow["sources"], outflow["counts"])
         self._history.append(self.totals())
         return outflow
 
@@ -154,11 +171,12 @@ class StockpileAsset:
         out_grade = np.bincount(inverse, weights=mass * grade,
                                 minlength=unique.size).astype(np.float64)
         out_grade = np.divide(out_grade, out_mass, out=np.zeros_like(out_mass), where=out_mass > 0)
+        counts = np.bincount(inverse, minlength=unique.size)
         store.remove_slots(slots)
         self.mass_out_kg += float(mass.sum())
         return {"tracking_ids": unique.astype(np.uint64), "masses": out_mass,
                 "grades": np.clip(out_grade, 0.0, 1.0), "sources": source[first],
-                "particle_ids": np.asarray(ids, dtype=np.uint64)}
+                "counts": counts, "particle_ids": np.asarray(ids, dtype=np.uint64)}
 
     # ------------------------------------------------------------- sensors
     def held_by_tracking_id(self) -> dict[int, float]:
@@ -181,11 +199,26 @@ class StockpileAsset:
             grade = hardness = d80 = float("nan")
         return {"time_s": self.time, "held_mass_kg": held, "grade": grade,
                 "hardness": hardness, "d80_m": d80, "particle_count": len(store),
-                "discharge_rate_kg_s": self.discharge_rate}
+                "discharge_rate_kg_s": self.discharge_rate,
+                "discharge_actual_kg_s": self.discharge_actual}
 
     def history(self, since: float = -np.inf) -> list[dict]:
         """Totals rows recorded after each step with ``time_s > since``."""
         return [row for row in self._history if row["time_s"] > since]
+
+    def events(self, since: int = 0) -> list[dict]:
+        """Macro-tracking events (lots in and out) with ``seq > since``."""
+        return self.lots.since(since)
+
+    @property
+    def layout(self) -> str:
+        """``particles`` (the model's own positions) or ``schematic``."""
+        return "particles" if getattr(self.storage, "has_geometry", False) else "schematic"
+
+    def origin_names(self) -> dict:
+        """Display name per origin value of ``particle_table`` (the source index)."""
+        sources = np.unique(self.particles.attribute("source"))
+        return {int(s): self.source_names.get(int(s), f"source {int(s)}") for s in sources}
 
     # ------------------------------------------------------------- display
     def _update_display(self) -> None:

@@ -177,8 +177,11 @@ def test_monitor_page_against_a_running_stockpile(processes, tmp_path):
                 page.select_option("#colour-by", attribute)
                 expect(pile).to_have_attribute("data-colour-by", attribute)
                 expect(page.locator("#legend-label")).to_have_text(label)
-            # source 1 delivers from 27.5 s of simulation (7 s of wall time at speed 4)
-            expect(page.locator("#legend-min")).to_contain_text("source 0, 1", timeout=30_000)
+            # source 1 delivers from 27.5 s of simulation (7 s of wall time at speed 4); the
+            # key names both sources as the stockpile calls them
+            expect(page.locator("#legend-min")).to_contain_text("ore body B (80 % grade)",
+                                                                timeout=30_000)
+            expect(page.locator("#legend-min")).to_contain_text("ore body A (20 % grade)")
             assert page.evaluate("document.getElementById('pile').toDataURL()") != before
             page.select_option("#colour-by", "grade")
 
@@ -216,6 +219,14 @@ def test_monitor_page_against_a_running_stockpile(processes, tmp_path):
                                    "window.monitorState.history.length > 0", timeout=10_000)
             first = page.evaluate("window.monitorState.history[0].time_s")
             assert first < last_time  # the chart restarted with the new run
+            # and the page says so, naming the jump of the clock (from the last
+            # time it saw, which may be a poll later than last_time)
+            expect(page.locator("#restart-banner")).to_be_visible()
+            restarts = page.evaluate("window.monitorState.restarts")
+            assert len(restarts) == 1 and restarts[0]["from_s"] >= last_time > first
+            expect(page.locator("#restart-detail")).to_contain_text(
+                f"its clock went back from t = {restarts[0]['from_s']:.1f} s to "
+                f"{restarts[0]['to_s']:.1f} s")
             page.screenshot(path=str(shots[2]), full_page=True)
 
             assert running["monitor"].poll() is None
@@ -255,6 +266,17 @@ def test_monitor_page_against_the_mine_simulator(tmp_path):
                     "Number(document.getElementById('held-mass').dataset.value) > 0",
                     timeout=30_000)
                 _check_shown_values_equal_rest(page, match.group(0))
+                # FIFO has no geometry: the picture says it is schematic
+                sync_api.expect(page.locator("#pile")).to_have_attribute("data-layout",
+                                                                         "schematic")
+                sync_api.expect(page.locator("#pile-title")).to_contain_text("SCHEMATIC")
+                # the events the page holds are the stockpile's, in order
+                shown = page.evaluate("""() => window.monitorState.events.map(
+                    (e) => [e.seq, e.kind, e.mass_kg, e.particle_count])""")
+                status, served = get(match.group(0) + "/events")
+                assert status == 200 and shown
+                assert shown == [[e["seq"], e["kind"], e["mass_kg"], e["particle_count"]]
+                                 for e in served["events"]][:len(shown)]
                 page.select_option("#colour-by", "origin")
                 sync_api.expect(page.locator("#pile")).to_have_attribute("data-colour-by",
                                                                          "origin")
@@ -286,3 +308,172 @@ def test_monitor_command_fails_on_a_busy_port():
                                "--port", str(port)], capture_output=True, text=True, timeout=60)
     assert done.returncode == 1
     assert f"cannot serve on 127.0.0.1:{port}" in done.stderr
+
+
+# ------------------------------------------------------- the operator's screen
+CAPACITY_T = 50.0
+LEVEL_HIGH_PCT = 60.0
+
+
+@pytest.fixture
+def driven_stockpile(tmp_path):
+    """A stockpile asset served on 127.0.0.1 whose bins, feeder and steps the
+    test drives, and the monitor (its own process) configured with a 50 t
+    capacity and a 60 % high-level alarm."""
+    _ensure_chromium()
+    from surrogate.rest import serve_in_thread
+    from surrogate.stockpile import StockpileAsset
+
+    asset = StockpileAsset("fifo", seed=0, source_names={0: "north pit", 1: "south pit"})
+    rest = serve_in_thread(asset)
+    config = tmp_path / "monitor.toml"
+    config.write_text(f"[stockpile]\ncapacity_t = {CAPACITY_T}\n[alarms]\n"
+                      f"level_high_pct = {LEVEL_HIGH_PCT}\nlevel_low_pct = 0.0\n"
+                      "grade_low_pct = 0.0\ngrade_high_pct = 100.0\n")
+    stockpile_url = f"http://127.0.0.1:{rest.port}"
+    monitor = None
+    try:
+        monitor, match = _start([MINETWIN, "monitor", "--stockpile", stockpile_url, "--port", "0",
+                                 "--config", str(config)],
+                                r"http://127\.0\.0\.1:\d+/", stream="stderr")
+        yield asset, rest, stockpile_url, match.group(0)
+    finally:
+        if monitor is not None:
+            _stop(monitor)
+        rest.stop()
+
+
+def _drive(page, asset, rest, bins=(), rate=0.0, steps=0):
+    """Deliver ``bins`` (tracking id, mass [kg], grade, source), run the feeder at
+    ``rate`` [kg/s] for ``steps`` steps of 1 s, and wait until the page shows that time."""
+    with rest.lock:
+        for tracking_id, mass, grade, source in bins:
+            asset.receive_bin(tracking_id, mass, grade, 1.0 + grade, source=source)
+        asset.set_discharge_rate(rate)
+        for _ in range(steps):
+            asset.step(1.0)
+        time_s = asset.time
+    page.wait_for_function(
+        f"window.monitorState.history.length > 0 && "
+        f"window.monitorState.history[window.monitorState.history.length - 1].time_s === {time_s}"
+        f" && window.monitorState.lastSeq === {asset.lots.last_seq}", timeout=10_000)
+    # one more poll, so that every element drawn shows the same state
+    updates = page.evaluate("window.monitorState.updates")
+    page.wait_for_function(f"window.monitorState.updates > {updates}", timeout=10_000)
+    return time_s
+
+
+def _shown(page, element_id):
+    return page.evaluate(f"""() => {{ const el = document.getElementById('{element_id}');
+        return [el.dataset.value, el.textContent]; }}""")
+
+
+def test_monitor_operator_screen(driven_stockpile, tmp_path):
+    """Capacity %, setpoint against actual, an alarm raised and cleared by the
+    level the test drives, the event list against the lots delivered, a zoomed
+    trend and the CSV export against /history, in Debian chromium."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    asset, rest, stockpile_url, monitor_url = driven_stockpile
+    with sync_api.sync_playwright() as playwright:
+        browser = _launch(playwright)
+        try:
+            page = browser.new_page(viewport={"width": 1600, "height": 1000},
+                                    accept_downloads=True)
+            errors = []
+            page.on("pageerror", lambda error: errors.append(str(error)))
+            page.on("console", lambda message: message.type == "error"
+                    and errors.append(message.text))
+            page.goto(monitor_url + "?poll=250")
+            sync_api.expect(page.locator("#status")).to_have_text("LIVE", timeout=15_000)
+
+            # two lots in, the feeder at 500 kg/s for 4 s: 18 t held of 50 t
+            lots = [(11, 10_000.0, 0.3, 0), (12, 10_000.0, 0.5, 1)]
+            _drive(page, asset, rest, lots, rate=500.0, steps=4)
+            _, totals = get(stockpile_url + "/totals")
+            assert totals["held_mass_kg"] == pytest.approx(18_000.0)
+            fill, fill_text = _shown(page, "fill-pct")
+            assert float(fill) == pytest.approx(100 * totals["held_mass_kg"] / (1000 * CAPACITY_T),
+                                                rel=1e-12)
+            assert fill_text == "36.0"
+            assert page.locator("#capacity").text_content() == "50"
+            setpoint, setpoint_text = _shown(page, "discharge-rate")
+            actual, actual_text = _shown(page, "discharge-actual")
+            assert float(setpoint) == totals["discharge_rate_kg_s"] == 500.0
+            assert float(actual) == totals["discharge_actual_kg_s"] == pytest.approx(500.0)
+            assert setpoint_text == actual_text == "1800"  # t/h
+            assert _shown(page, "alarm-count")[0] == "0"
+
+            # the event list is the stockpile's /events, and its lots in are the bins delivered
+            _, events = get(stockpile_url + "/events")
+            rows = page.evaluate("""() => [...document.querySelectorAll('#event-list tr')]
+                .map((tr) => [Number(tr.dataset.seq), tr.dataset.kind,
+                              Number(tr.dataset.trackingId), Number(tr.dataset.mass)])""")
+            assert rows == [[e["seq"], e["kind"], e["tracking_id"], e["mass_kg"]]
+                            for e in reversed(events["events"])]
+            assert [(e["tracking_id"], e["mass_kg"], e["grade"], e["source"])
+                    for e in events["events"] if e["kind"] == "in"] == [lot for lot in lots]
+            out = [e for e in events["events"] if e["kind"] == "out"]
+            assert {e["tracking_id"] for e in out} == {11}  # FIFO: the first lot leaves first
+            assert sum(e["mass_kg"] for e in out) == pytest.approx(2_000.0)
+            assert page.locator("#event-list tr[data-kind='in'] td:nth-child(7)").all_text_contents() \
+                == ["south pit", "north pit"]
+
+            # two more lots: 37.5 t is 75 % of capacity, above the 60 % limit
+            _drive(page, asset, rest, [(13, 10_000.0, 0.4, 0), (14, 10_000.0, 0.6, 1)],
+                   rate=500.0, steps=1)
+            high = page.locator("#alarm-list tr[data-alarm='level_high']")
+            sync_api.expect(high).to_have_attribute("data-state", "ACTIVE")
+            assert _shown(page, "alarm-count") == ["1", "1 ALARM"]
+            raised_at = asset.time
+            # the feeder at 2000 kg/s for 4 s: 29.5 t, 59 % of capacity, the alarm clears
+            cleared_at = _drive(page, asset, rest, rate=2000.0, steps=4)
+            assert asset.totals()["held_mass_kg"] == pytest.approx(29_500.0)
+            sync_api.expect(high).to_have_attribute("data-state", "CLEARED")
+            assert high.count() == 1
+            assert _shown(page, "alarm-count")[0] == "0"
+            alarm = page.evaluate("window.monitorState.alarms")[0]
+            assert (alarm["raised_s"], alarm["cleared_s"]) == (raised_at, cleared_at)
+            assert alarm["value"] == pytest.approx(75.0)
+
+            # zoom: drag across the held-mass trend; every trend shows that time range
+            _drive(page, asset, rest, [(15, 5_000.0, 0.5, 0)], rate=500.0, steps=6)
+            over = page.locator("#trend-mass .u-over").bounding_box()
+            y = over["y"] + over["height"] / 2
+            page.mouse.move(over["x"] + 0.25 * over["width"], y)
+            page.mouse.down()
+            page.mouse.move(over["x"] + 0.6 * over["width"], y, steps=8)
+            page.mouse.up()
+            zoom = page.evaluate("window.monitorState.zoom")
+            history = get(stockpile_url + "/history")[1]["rows"]
+            assert history[0]["time_s"] < zoom["min"] < zoom["max"] < history[-1]["time_s"]
+            updates = page.evaluate("window.monitorState.updates")
+            page.wait_for_function(f"window.monitorState.updates > {updates + 1}")
+            scales = page.evaluate("""() => Object.values(window.monitorState.charts)
+                .map((u) => [u.scales.x.min, u.scales.x.max])""")
+            assert len(scales) == 6  # held mass, grade, hardness, D80, discharge, particles
+            assert scales == [[zoom["min"], zoom["max"]]] * 6  # kept through new data
+            assert page.locator("#zoom-reset").is_enabled()
+            page.screenshot(path=str(tmp_path / "monitor_operator.png"), full_page=True)
+
+            # the CSV export is /history
+            with page.expect_download() as download:
+                page.click("#export-csv")
+            exported = download.value.path().read_text().splitlines()
+            history = get(stockpile_url + "/history")[1]["rows"]
+            header = exported[0].split(",")
+            assert header == list(history[0])
+            assert len(exported) - 1 == len(history) == 4 + 1 + 4 + 6  # one row per step
+            for line, row in zip(exported[1:], history):
+                values = line.split(",")
+                assert [None if v == "" else float(v) for v in values] == \
+                    [None if row[k] is None else float(row[k]) for k in header]
+
+            page.click("#zoom-reset")
+            assert page.evaluate("window.monitorState.zoom") is None
+            assert errors == []
+        finally:
+            browser.close()
+    copy_to = os.environ.get("MINETWIN_SCREENSHOT_DIR")
+    if copy_to:
+        Path(copy_to).mkdir(parents=True, exist_ok=True)
+        shutil.copy(tmp_path / "monitor_operator.png", Path(copy_to) / "monitor_operator.png")

@@ -309,16 +309,44 @@ def test_fifo_feed_is_the_oldest_bins():
     assert profile_grades[0] == pytest.approx(0.8) and profile_grades[-1] == pytest.approx(0.2)
 
 
-def test_rest_component_serves_the_mine_simulator_stockpile():
+def test_events_are_the_lots_in_and_out():
+    """/events: one event per bin received, one per tracking id and step that
+    left, numbered 1, 2, ...; paged by since and limit."""
+    server = serve_in_thread(_fed_stockpile())
+    base = f"http://127.0.0.1:{server.port}"
+    try:
+        body = get(base, "/events")[1]
+        assert [e["seq"] for e in body["events"]] == list(range(1, body["last_seq"] + 1))
+        received = [e for e in body["events"] if e["kind"] == "in"]
+        assert [(e["tracking_id"], e["mass_kg"], e["grade"], e["source"]) for e in received] == \
+            [(100 + k, BIN_KG, (0.2, 0.8)[k % 2], k % 2) for k in range(10)]
+        left = [e for e in body["events"] if e["kind"] == "out"]
+        # 5 steps of 1 s at 500 kg/s: bin 100 whole, then a quarter of 101
+        assert sum(e["mass_kg"] for e in left) == pytest.approx(5 * RATE_KG_S)
+        assert {e["tracking_id"] for e in left} == {100, 101}
+        assert sorted({e["time_s"] for e in left}) == [1.0, 2.0, 3.0, 4.0, 5.0]
+        page = get(base, "/events?since=3&limit=2")[1]
+        assert [e["seq"] for e in page["events"]] == [4, 5]
+        assert get(base, f"/events?since={body['last_seq']}")[1]["events"] == []
+        totals = get(base, "/totals")[1]
+        assert totals["discharge_actual_kg_s"] == pytest.approx(RATE_KG_S)
+    finally:
+        server.stop()
+
+
+def test_rest_component_serves_the_mine_simulator_stockpile(tmp_path):
     """The stockpile of the mine simulator (what ``minetwin simulate`` runs),
     read over REST while the master runs: every reading is the state at a
-    step boundary (equal to that step's row), and the rows equal the
-    simulator's own record of the stockpile mass."""
+    step boundary (equal to that step's row), the rows equal the
+    simulator's own record of the stockpile mass, and the lots in and out
+    are the stockpile's enter and exit events in events.sqlite."""
+    from cosim.events import EventStore
     from cosim.scenario import build, load
 
     try:
         simulation = build(load(Path(__file__).resolve().parents[1] / "examples"
-                                / "step_response.toml"), progress=False)
+                                / "step_response.toml"), progress=False,
+                           events_path=tmp_path / "events.sqlite")
     except ValidationError as exc:
         pytest.skip(f"mine simulator not runnable here (build the FMUs first): {exc}")
     pile = simulation.assets["stockpile"]
@@ -336,7 +364,7 @@ def test_rest_component_serves_the_mine_simulator_stockpile():
     reader = threading.Thread(target=read_while_running)
     reader.start()
     try:
-        simulation.run(240.0)
+        simulation.run(510.0)  # the feeder starts at 500 s
     finally:
         stop.set()
         reader.join()
@@ -349,6 +377,31 @@ def test_rest_component_serves_the_mine_simulator_stockpile():
     recorded = simulation.timeseries["stockpile.mass_kg"]
     for t, mass in recorded.items():
         assert history[t]["held_mass_kg"] == pytest.approx(mass, rel=1e-12, abs=1e-9)
+    # the lots in and out balance the mass held, and the actual discharge rate
+    # is the mass of the lots out in the trailing 30 s over 30 s
+    events, times = rest.view.events(), sorted(history)
+    moved = {kind: sum(e["mass_kg"] for e in events if e["kind"] == kind) for kind in ("in", "out")}
+    assert moved["in"] > 0 and moved["out"] > 0
+    assert moved["in"] - moved["out"] == pytest.approx(
+        history[times[-1]]["held_mass_kg"] - history[times[0]]["held_mass_kg"], abs=1e-6)
+    for t in times[1:]:
+        out = sum(e["mass_kg"] for e in events if e["kind"] == "out" and t - 30 < e["time_s"] <= t)
+        assert history[t]["discharge_actual_kg_s"] == pytest.approx(
+            out / min(30.0, t - times[0]), rel=1e-9, abs=1e-9)
+    # each lot is the particles of the enter (in) or exit (out) events of its
+    # step, stamped with the step's end time like the lot
+    store = EventStore(tmp_path / "events.sqlite", readonly=True)
+    try:
+        for kind, type_ in (("in", "enter"), ("out", "exit")):
+            recorded = store.particles(type=type_, asset="stockpile")
+            lots = [e for e in events if e["kind"] == kind]
+            assert sum(e["particle_count"] for e in lots) == len(recorded) > 0
+            for lot in lots:
+                step = recorded[np.isclose(recorded.time, lot["time_s"], rtol=0, atol=1e-9)]
+                assert lot["particle_count"] == len(step)
+                assert lot["mass_kg"] == pytest.approx(step.mass.sum(), rel=1e-12)
+    finally:
+        store.close()
 
 
 BAD_PARAMETERS = [
@@ -365,6 +418,8 @@ BAD_PARAMETERS = [
     ("/feed?horizon=0", "horizon"), ("/feed?horizon=-5", "horizon"),
     ("/feed?horizon=inf", "horizon"), ("/feed?horizon=1e9", "horizon"),
     ("/feed?horizon=soon", "horizon"),
+    ("/events?since=-1", "since"), ("/events?since=x", "since"), ("/events?limit=0", "limit"),
+    ("/events?limit=5001", "limit"),
 ]
 
 
@@ -395,7 +450,7 @@ def test_openapi_document_is_served_and_covers_every_endpoint(served):
     assert status == 200
     assert body == json.loads(json.dumps(OPENAPI))
     assert set(body["paths"]) == {"/health", "/totals", "/history", "/fields", "/particles",
-                                  "/feed", "/openapi.json"}
+                                  "/feed", "/events", "/openapi.json"}
 
 
 # ------------------------------------------------------------ property-based

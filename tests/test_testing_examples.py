@@ -45,7 +45,7 @@ def test_swapping_in_the_cone_crusher_is_caught_with_a_table(runs):
     assert "1 failed" in out
     assert "result differs from the reference" in out and "plant_reference.csv" in out
     table = [line.split()[1:] for line in out.splitlines() if line.startswith("E   ")]
-    assert any(cells[:3] == ["signal", "worst", "deviation"] for cells in table)
+    assert any(cells[:4] == ["signal", "unit", "worst", "deviation"] for cells in table)
     verdicts = {cells[0]: cells[-1] for cells in table
                 if len(cells) > 2 and cells[-1] in ("pass", "FAIL")}
     assert verdicts["stockpile.d_mean"] == "FAIL"       # the cone crusher's product is coarser

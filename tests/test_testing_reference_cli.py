@@ -41,9 +41,9 @@ def test_compare_passes_a_rerun_and_fails_a_changed_signal_with_table_and_overla
     frame["mill_fmu.power"] *= 1.03                        # the mill drew 3 % less before
     changed = tmp_path / "changed.csv"
     frame.to_csv(changed, index=False, float_format="%.17g")
-    plots = tmp_path / "plots"
-    assert main(["reference", "compare", str(scenario), str(changed), "--plots",
-                 str(plots)]) == 1
+    assert main(["reference", "compare", str(scenario), str(changed), "--out",
+                 str(tmp_path / "compare")]) == 1
+    plots = tmp_path / "compare" / "overlays"
     captured = capsys.readouterr()
     lines = captured.out.splitlines()
     row = next(line for line in lines if line.startswith("mill_fmu.power"))

@@ -227,14 +227,14 @@ def analyse_model(run, predicted: pd.DataFrame, min_mass: float) -> tuple[dict, 
                     "averages": storage_averages(table, "stockpile", times)}
 
 
-def plot(curves: dict, snapshots: dict, out) -> list:
-    """Figures in the spirit of the paper's pileDistribution and storageEvolutionandOutflow."""
-    import matplotlib
+def plot(curves: dict, snapshots: dict, out, run: str | None = None) -> list:
+    """Figures in the spirit of the paper's pileDistribution and storageEvolutionandOutflow;
+    one row per storage model, ``run`` names the scenario and seed in the titles."""
+    from cosim import plotstyle
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = plotstyle.pyplot()
     out = Path(out)
+    units = {"speed": "speed [m/s]", "grade": "grade [-]", "hardness": "hardness [-]"}
     paths = []
     names = list(curves)
     fig, axes = plt.subplots(len(names), 3, figsize=(12, 3.2 * len(names)), squeeze=False)
@@ -250,26 +250,26 @@ def plot(curves: dict, snapshots: dict, out) -> list:
                 ax.set_xlabel("x [m]")
                 ax.set_ylabel("y [m]")
                 ax.set_aspect("equal")
-                fig.colorbar(points, ax=ax)
+                fig.colorbar(points, ax=ax, label=units[column])
                 ax.set_title(f"{name}: {column} at t = {snap.attrs['time']:.0f} s", fontsize=9)
                 continue
             # no geometry: the pile in the model's order of leaving, the next
             # horizon's feed (the analogue of the funnel zone) shaded
-            ax.axvspan(0.0, HORIZON_S, color="0.9")
+            ax.axvspan(0.0, HORIZON_S, color="0.9", label=f"feed of the next {HORIZON_S:g} s")
             if column == "speed":
                 ax.hist(snap["time_to_leave_s"], bins=40, weights=snap["mass"] * 1e-3)
                 ax.set_ylabel("held mass [t]")
                 title = "mass by time to leave"
             else:
                 ax.scatter(snap["time_to_leave_s"], snap[column], s=4)
-                ax.set_ylabel(column)
+                ax.set_ylabel(units[column])
                 title = column
             ax.set_xlabel("expected time to leave [s]")
             ax.set_title(f"{name}: {title} at t = {snap.attrs['time']:.0f} s", fontsize=9)
+            ax.grid(False)
+    plotstyle.title(fig, "Pile distribution per storage model", run)
     fig.tight_layout()
-    paths.append(out / "pile_distribution.png")
-    fig.savefig(paths[-1], dpi=100)
-    plt.close(fig)
+    paths.append(plotstyle.save(fig, out / "pile_distribution.png", dpi=100))
 
     fig, axes = plt.subplots(len(names), 2, figsize=(12, 3.2 * len(names)), squeeze=False)
     for (left, right), name in zip(axes, names):
@@ -279,8 +279,8 @@ def plot(curves: dict, snapshots: dict, out) -> list:
         left.plot(averages["time"], averages["hardness"], label="hardness")
         left.set_title(f"{name}: storage averages", fontsize=9)
         left.set_xlabel("time [s]")
+        left.set_ylabel("mass-weighted average [-]")
         left.legend(fontsize=8)
-        left.grid(alpha=0.3)
         out_ma, pred, real = c["outflow"], c["predicted"], c["realised"]
         right.plot(out_ma["time"], out_ma["grade"], color="tab:orange", lw=0.8,
                    label=f"outflow grade ({OUTFLOW_WINDOW_S:g} s moving average)")
@@ -290,12 +290,11 @@ def plot(curves: dict, snapshots: dict, out) -> list:
                    label=f"realised grade of the next {HORIZON_S:g} s")
         right.set_title(f"{name}: feed prediction", fontsize=9)
         right.set_xlabel("time [s]")
+        right.set_ylabel("grade [-]")
         right.legend(fontsize=7)
-        right.grid(alpha=0.3)
+    plotstyle.title(fig, "Storage evolution and outflow per storage model", run)
     fig.tight_layout()
-    paths.append(out / "storage_evolution_and_outflow.png")
-    fig.savefig(paths[-1], dpi=100)
-    plt.close(fig)
+    paths.append(plotstyle.save(fig, out / "storage_evolution_and_outflow.png", dpi=100))
     return paths
 
 
@@ -329,7 +328,8 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
             return probes[-1]
 
         run = run_profile(out / f"run_{name}", until=until, config=model_config, seed=seed,
-                          progress=progress, probes=(feed_probe, snapshot_probe))
+                          progress=progress and f"feed prediction: {name} run",
+                          probes=(feed_probe, snapshot_probe))
         ts = run.timeseries
         predicted = pd.DataFrame({"time": run.times,
                                   **{key: ts[f"feed_prediction.{key}"].to_numpy()
@@ -343,7 +343,12 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
         summary["feed_hardness_prediction_mae"][name] = errors["hardness"]
         summary["wall_s"][name] = run.run_summary["wall_s"]
         summary["seed"] = run.config["simulation"]["seed"]
-    summary["figures"] = [p.name for p in plot(curves, snapshots, out)]
+    from cosim.analyses.profile_run import SCENARIO
+    from cosim.plotstyle import run_label
+
+    label = run_label(scenario=Path(SCENARIO).stem, seed=summary.get("seed"),
+                      model=", ".join(curves))
+    summary["figures"] = [p.name for p in plot(curves, snapshots, out, label)]
     failed = [f"{name}: no prediction could be compared" for name in curves
               if not np.isfinite(summary["feed_grade_prediction_mae"][name])]
     summary["checks_failed"] = failed

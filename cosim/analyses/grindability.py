@@ -358,13 +358,17 @@ def analyse(run, window: float = 30.0) -> tuple[dict, dict]:
                      "hardness": hardness[mined], "enough": enough}
 
 
-def plot(data: dict, out) -> list:
-    """Figures in the spirit of the paper's "grindability" and "block_grindability"."""
-    import matplotlib
+BWI_NOTE = ("BWI of the idealised mill FMU: its specific-energy scale is not calibrated "
+            "(real ore: about 10-20 kWh/t);\nread the changes between blocks, not the level")
+"""What the figures say about the absolute BWI level."""
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
+def plot(data: dict, out, run: str | None = None) -> list:
+    """Figures in the spirit of the paper's "grindability" and "block_grindability";
+    ``run`` names the run in the titles (``cosim.plotstyle.run_label``)."""
+    from cosim import plotstyle
+
+    plt = plotstyle.pyplot()
     out = Path(out)
     signals, result = data["signals"], data["result"]
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
@@ -377,19 +381,19 @@ def plot(data: dict, out) -> list:
         lo, hi = np.percentile(steady, [0.5, 99.5])
         ax.set_ylim(lo - 0.2 * (hi - lo + 1e-12), hi + 0.2 * (hi - lo + 1e-12))
     ax.set_ylabel("BWI [kWh/t]")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
+    ax.text(0.01, 0.02, BWI_NOTE, transform=ax.transAxes, fontsize=7, va="bottom",
+            bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
+    plotstyle.legend(ax, loc="upper right")
     for j, i in enumerate(data["index"]):
         bx.plot(result["times"], 1.0 / result["block_grindability"][:, j], lw=1.0,
                 label=f"block {i}")
     bx.set_ylabel("backtracked 1/G_i [kWh/t]")
     bx.set_xlabel("time [s]")
     bx.legend(fontsize=7, ncol=5)
-    bx.grid(alpha=0.3)
+    plotstyle.title(fig, "Grindability from the mill's energy: measured BWI and the "
+                    "backtracked block values", run)
     fig.tight_layout()
-    paths = [out / "grindability.png"]
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths = [plotstyle.save(fig, out / "grindability.png")]
 
     centres = (data["index"] + 0.5) * BLOCK_LENGTH_M     # from the profile's start
     fig, ax = plt.subplots(figsize=(6, 4))
@@ -401,14 +405,23 @@ def plot(data: dict, out) -> list:
     lo = np.nanmin(result["final"])
     ax.set_ylim(lo - 0.2 * (np.nanmax(result["final"]) - lo + 1e-12), None)
     twin = ax.twinx()
-    twin.plot(centres, data["hardness"], "o-", color="tab:blue", label="block hardness")
+    twin.grid(False)
+    twin.plot(centres, data["hardness"], "o-", color="tab:blue",
+              label="block hardness (right axis)")
     twin.set_ylabel("hardness [-]", color="tab:blue")
-    ax.legend(fontsize=8, loc="lower center")
+    plotstyle.legend(ax, twin, loc="lower center")
+    plotstyle.title(fig, "Backtracked grindability per block\n(idealised mill: energy scale "
+                    "not calibrated)", run)
     fig.tight_layout()
-    paths.append(out / "block_grindability.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(plotstyle.save(fig, out / "block_grindability.png"))
     return paths
+
+
+def _run_label(run) -> str:
+    from cosim.analyses.profile_run import SCENARIO
+    from cosim.plotstyle import run_label
+
+    return run_label(run.config, scenario=Path(SCENARIO).stem)
 
 
 def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int | None = None):
@@ -419,11 +432,11 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
     out = output_folder(out_dir)
     until = QUICK_UNTIL_S if quick else FULL_UNTIL_S
     run = run_profile(out / "run", until=until, config=scenario_config(quick=quick), seed=seed,
-                      progress=progress)
+                      progress=progress and "grindability run")
     summary, data = analyse(run)
     summary.update(quick=quick, simulated_s=until, seed=run.config["simulation"]["seed"],
                    wall_s=run.run_summary["wall_s"],
-                   figures=[p.name for p in plot(data, out)])
+                   figures=[p.name for p in plot(data, out, _run_label(run))])
     failed = []
     if len(summary["blocks_with_enough_mass"]) < N_BLOCKS:
         failed.append(f"only {len(summary['blocks_with_enough_mass'])} of {N_BLOCKS} blocks "

@@ -310,12 +310,12 @@ def analyse(run, betas_shown=(0.3, 0.5)) -> tuple[dict, dict]:
 
 def plot(run, data: dict, summary: dict, out) -> list:
     """The paper's figures hardness_vs_MWD_tracking_error, crusher_observed_torque_models and
-    crusher_torque_to_hardness, as PNG files in ``out``."""
-    import matplotlib
+    crusher_torque_to_hardness, as PNG files in ``out``, titled with the run."""
+    from cosim import plotstyle
+    from cosim.analyses.profile_run import SCENARIO
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = plotstyle.pyplot()
+    label = plotstyle.run_label(run.config, scenario=Path(SCENARIO).stem)
     out = Path(out)
     paths = []
     left = run.survey[run.survey["source"] == "left"]
@@ -329,11 +329,9 @@ def plot(run, data: dict, summary: dict, out) -> list:
     ax.set_xlabel("origin x along the left ore body [m]")
     ax.set_ylabel("hardness, MWD signal [-]")
     ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
+    plotstyle.title(fig, "Hardness and MWD signal along the left ore body", label)
     fig.tight_layout()
-    paths.append(out / "hardness_vs_mwd_tracking_error.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(plotstyle.save(fig, out / "hardness_vs_mwd_tracking_error.png"))
 
     times, torque = data["times"], data["torque"]
     # a window with four truck loads (two per source), where the profile is hard
@@ -346,11 +344,9 @@ def plot(run, data: dict, summary: dict, out) -> list:
     ax.set_xlabel("time [s]")
     ax.set_ylabel("crusher torque [N m]")
     ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
+    plotstyle.title(fig, "Crusher torque: observed and the ansatz s = h^beta", label)
     fig.tight_layout()
-    paths.append(out / "crusher_observed_torque_models.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(plotstyle.save(fig, out / "crusher_observed_torque_models.png"))
 
     zone = data["zone"]
     fig, ax = plt.subplots(figsize=(10, 4))
@@ -363,11 +359,9 @@ def plot(run, data: dict, summary: dict, out) -> list:
     ax.set_xlabel("time [s]")
     ax.set_ylabel("hardness in the crusher zone [-]")
     ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
+    plotstyle.title(fig, "Hardness in the crusher zone: true and predicted from MWD", label)
     fig.tight_layout()
-    paths.append(out / "crusher_torque_to_hardness.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(plotstyle.save(fig, out / "crusher_torque_to_hardness.png"))
     return paths
 
 
@@ -387,7 +381,7 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
     error = MWD_LOCATION_ERROR_M if location_error is None else float(location_error)
     until = QUICK_UNTIL_S if quick else FULL_UNTIL_S
     run = run_profile(out / "run", until=until, config=scenario_config(quick=quick),
-                      location_error=error, seed=seed, progress=progress)
+                      location_error=error, seed=seed, progress=progress and "MWD run")
     summary, data = analyse(run)
     summary.update(quick=quick, simulated_s=until, location_error_m=error,
                    seed=run.config["simulation"]["seed"], wall_s=run.run_summary["wall_s"],

@@ -173,43 +173,43 @@ def analyse(run, *, dxs, seeds, window: float = 30.0) -> tuple[dict, pd.DataFram
     return summary, mwd_sweep, grind_sweep
 
 
-def plot(mwd_sweep: pd.DataFrame, grind_sweep: pd.DataFrame, out) -> list:
-    """Error against dx with the seeds' spread as error bars."""
-    import matplotlib
+def plot(mwd_sweep: pd.DataFrame, grind_sweep: pd.DataFrame, out, run: str | None = None) -> list:
+    """Error against dx with the seeds' spread as error bars; ``run`` names the runs."""
+    from cosim import plotstyle
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    plt = plotstyle.pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.4))
     panels = [(mwd_sweep, "beta_error", "|beta_fit - 0.4| [-]"),
               (grind_sweep, "corr", "corr(block grindability, hardness) [-]"),
               (grind_sweep, "rel_deviation", "block grindability: RMS rel. change [-]")]
     for ax, (frame, column, label) in zip(axes, panels):
         grouped = frame.groupby("dx")[column]
+        seeds = int(frame.groupby("dx").size().max())
         ax.errorbar(grouped.mean().index, grouped.mean(), yerr=grouped.std(ddof=0), fmt="o-",
-                    capsize=3)
+                    capsize=3, label=f"mean over {seeds} seeds, bars: standard deviation")
         ax.set_xlabel("location error dx [m]")
         ax.set_ylabel(label)
-        ax.grid(alpha=0.3)
-    axes[0].axhline(0.01, color="gray", ls=":", lw=1)
-    axes[1].axhline(-0.8, color="gray", ls=":", lw=1)
+    # guides to read the panels against, not pass/fail limits
+    axes[0].axhline(0.01, color="gray", ls=":", lw=1, label="guide: 0.01")
+    axes[1].axhline(-0.8, color="gray", ls=":", lw=1, label="guide: -0.8")
+    for ax in axes:
+        plotstyle.legend(ax, fontsize=7)
+    plotstyle.title(fig, "Sensitivity to the location error of the tracking", run)
     fig.tight_layout()
-    path = Path(out) / "sensitivity.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return [path]
+    return [plotstyle.save(fig, Path(out) / "sensitivity.png")]
 
 
 def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int | None = None):
     """One quadratic-profile run, then both sweeps; (summary, failed checks)."""
     import sys
 
-    from cosim.analyses.profile_run import output_folder, run_profile, scenario_config
+    from cosim.analyses.profile_run import SCENARIO, output_folder, run_profile, scenario_config
+    from cosim.plotstyle import run_label
 
     out = output_folder(out_dir)
     until = grindability.QUICK_UNTIL_S if quick else grindability.FULL_UNTIL_S
     run = run_profile(out / "run", until=until, config=scenario_config(quick=quick), seed=seed,
-                      progress=progress)
+                      progress=progress and "sensitivity run")
     dxs, seeds = (QUICK_DXS, QUICK_SEEDS) if quick else (FULL_DXS, FULL_SEEDS)
     if progress:
         print(f"sensitivity: {len(dxs)} location errors x {len(seeds)} seeds "
@@ -219,7 +219,10 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
     grind_sweep.to_csv(out / "grindability_sweep.csv", index=False)
     summary.update(quick=quick, simulated_s=until, seed=run.config["simulation"]["seed"],
                    wall_s=run.run_summary["wall_s"],
-                   figures=[p.name for p in plot(mwd_sweep, grind_sweep, out)])
+                   figures=[p.name for p in plot(
+                       mwd_sweep, grind_sweep, out,
+                       run_label(run.config, scenario=Path(SCENARIO).stem)
+                       + f", seeds {list(seeds)} of the location error")])
     failed = []
     error = mwd_sweep.groupby("dx")["beta_error"].mean()
     if not error.iloc[0] <= 0.005:

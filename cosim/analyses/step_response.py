@@ -163,77 +163,85 @@ def _moving_average(values, samples: int):
     return pd.Series(values).rolling(max(samples, 1), min_periods=1).mean().to_numpy()
 
 
-def plot(step, reference, summary: dict, out: Path, window_s: float = 30.0) -> list[Path]:
-    """crusher_step.png and mill_step.png (paper figures "crusherStep", "millStepBest")."""
-    import matplotlib
+def plot(step, reference, summary: dict, out: Path, window_s: float = 30.0,
+         run: str | None = None) -> list[Path]:
+    """crusher_step.png and mill_step.png (paper figures "crusherStep", "millStepBest").
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    ``run`` names the run in the titles (``cosim.plotstyle.run_label``).
+    """
+    from cosim import plotstyle
 
+    plt = plotstyle.pyplot()
     dt = float(np.median(np.diff(step.index.to_numpy())))
     n = int(round(window_s / dt))
     t = step.index.to_numpy()
+    avg = f"{window_s:g} s moving average"
     paths = []
 
-    fig, (ax_p, ax_h) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    fig, (ax_p, ax_h) = plt.subplots(2, 1, figsize=(9, 7.5), sharex=True)
     power = step["crusher_fmu.power"].to_numpy() / 1e3
-    ax_p.plot(t, power, lw=0.6, color="tab:blue", label="power")
-    ax_p.plot(t, _moving_average(power, n), lw=1.8, color="navy", label="30 s average")
+    ax_p.plot(t, power, lw=0.6, color="tab:blue", label="crusher power")
+    ax_p.plot(t, _moving_average(power, n), lw=1.8, color="navy", label=f"crusher power, {avg}")
     ax_p.set_ylabel("(a) crusher power [kW]")
     mass = ax_p.twinx()
-    mass.plot(t, step["crusher.zone_mass_kg"].to_numpy(), lw=0.6, color="tab:gray",
-              label="mass in crusher zone")
+    mass.grid(False)
+    # behind the power traces: the charge explains the power, it is not the result
+    mass.set_zorder(ax_p.get_zorder() - 1)
+    ax_p.patch.set_visible(False)
+    mass.plot(t, step["crusher.zone_mass_kg"].to_numpy(), lw=0.6, color="tab:gray", alpha=0.6,
+              label="mass in crusher zone (right axis)")
     mass.set_ylabel("mass in crusher zone [kg]", color="tab:gray")
     ax_h.plot(t, step["crusher.zone_hardness"].to_numpy(), lw=0.6, color="tab:green",
               label="zone hardness (virtual sensor)")
     ax_h.plot(t, step["crusher.zone_hardness_avg"].to_numpy(), lw=1.8, color="darkgreen",
-              label="30 s average")
-    ax_h.set_ylabel("(b) hardness [-]")
+              label=f"zone hardness, {avg}")
+    ax_h.set_ylabel("(b) crusher zone hardness [-]")
     ax_h.set_xlabel("time [s]")
+    hard = f"hard ore reaches the crusher ({summary['hard_ore_reached_s']:.0f} s)"
     for ax in (ax_p, ax_h):
-        ax.axvline(summary["hard_ore_reached_s"], color="k", ls="--", lw=0.8)
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper left", fontsize=8)
-    ax_p.set_title(f"Crusher step response: {summary['crusher_power_before_w'] / 1e3:.2f} -> "
-                   f"{summary['crusher_power_after_w'] / 1e3:.2f} kW "
-                   f"(x{summary['crusher_power_ratio']:.2f}), period "
-                   f"{summary['truck_cycle_period_s']:.0f} s", fontsize=10)
+        plotstyle.mark(ax, summary["hard_ore_reached_s"], hard)
+    plotstyle.legend(ax_p, mass, loc="upper left")
+    plotstyle.legend(ax_h, loc="upper left")
+    plotstyle.title(fig, f"Crusher step response: {summary['crusher_power_before_w'] / 1e3:.2f}"
+                    f" -> {summary['crusher_power_after_w'] / 1e3:.2f} kW "
+                    f"(x{summary['crusher_power_ratio']:.2f}), truck-cycle period "
+                    f"{summary['truck_cycle_period_s']:.0f} s", run)
     fig.tight_layout()
-    paths.append(out / "crusher_step.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(plotstyle.save(fig, out / "crusher_step.png"))
 
-    fig, (ax_p, ax_h) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
-    for series, label, color in ((step, "hardness step", "tab:red"),
-                                 (reference, "reference h = 1", "tab:blue")):
+    fig, (ax_p, ax_h) = plt.subplots(2, 1, figsize=(9, 7.5), sharex=True)
+    for series, label, color in ((step, "hardness step run", "tab:red"),
+                                 (reference, "reference run (hardness 1)", "tab:blue")):
         rt = series.index.to_numpy()
         p = series["mill_fmu.power"].to_numpy() / 1e6
-        ax_p.plot(rt, p, lw=0.5, color=color, alpha=0.5)
-        ax_p.plot(rt, _moving_average(p, n), lw=1.8, color=color, label=f"{label} (30 s avg)")
-        ax_h.plot(rt, series["mill.hardness"].to_numpy(), lw=0.5, color=color, alpha=0.5)
+        ax_p.plot(rt, p, lw=0.5, color=color, alpha=0.5, label=f"mill power, {label}")
+        ax_p.plot(rt, _moving_average(p, n), lw=1.8, color=color,
+                  label=f"mill power, {label}, {avg}")
+        ax_h.plot(rt, series["mill.hardness"].to_numpy(), lw=0.5, color=color, alpha=0.5,
+                  label=f"mill hardness, {label}")
         ax_h.plot(rt, series["mill.hardness_avg"].to_numpy(), lw=1.8, color=color,
-                  label=f"{label} (30 s avg)")
+                  label=f"mill hardness, {label}, {avg}")
     mass = ax_p.twinx()
+    mass.grid(False)
     mass.plot(t, step["mill.mass_kg"].to_numpy() / 1e3, lw=1.0, color="tab:orange", ls=":",
-              label="mill charge, step [t]")
+              label="ore mass in mill, hardness step run (right axis)")
     mass.plot(reference.index.to_numpy(), reference["mill.mass_kg"].to_numpy() / 1e3, lw=1.0,
-              color="tab:cyan", ls=":", label="mill charge, reference [t]")
+              color="tab:cyan", ls=":", label="ore mass in mill, reference run (right axis)")
     mass.set_ylabel("ore mass in mill [t]")
-    mass.legend(loc="lower right", fontsize=8)
     ax_p.set_ylabel("(a) mill power [MW]")
     ax_h.set_ylabel("(b) mill hardness [-]")
     ax_h.set_xlabel("time [s]")
+    start = f"stockpile discharge starts ({summary['discharge_start_s']:.0f} s)"
     for ax in (ax_p, ax_h):
-        ax.axvline(summary["discharge_start_s"], color="k", ls="--", lw=0.8)
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper left", fontsize=8)
-    ax_p.set_title(f"Mill step response: hardness rises {summary['mill_hardness_rise_time_s']:.0f}"
-                   f" s after discharge starts; power x{summary['mill_power_ratio_vs_reference']:.2f}"
-                   " vs reference", fontsize=10)
+        plotstyle.mark(ax, summary["discharge_start_s"], start)
+    plotstyle.legend(ax_p, mass, loc="upper left", fontsize=7)
+    plotstyle.legend(ax_h, loc="upper left", fontsize=7)
+    plotstyle.title(fig, f"Mill step response: hardness rises "
+                    f"{summary['mill_hardness_rise_time_s']:.0f} s after the discharge starts; "
+                    f"power x{summary['mill_power_ratio_vs_reference']:.2f} vs the reference run",
+                    run)
     fig.tight_layout()
-    paths.append(out / "mill_step.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(plotstyle.save(fig, out / "mill_step.png"))
     return paths
 
 
@@ -245,11 +253,15 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
     out = Path(out_dir)
     config = load(scenario)
     until = QUICK_UNTIL_S if quick else config["simulation"]["until_s"]
+    name = Path(scenario).stem
     step_sim, step_summary = run_scenario(config, out / "step", until=until,
-                                          storage_model=storage_model, progress=progress)
+                                          storage_model=storage_model,
+                                          progress=progress and "step response: hardness step run",
+                                          scenario_name=name)
     ref_sim, ref_summary = run_scenario(reference_config(step_sim.config), out / "reference",
                                         until=until, storage_model=storage_model,
-                                        progress=progress)
+                                        progress=progress and "step response: reference run",
+                                        scenario_name=f"{name} (reference)")
     truck = next(a for a in step_sim.assets.values() if hasattr(a, "cycle_time"))
     hard_s = hard_ore_reached_s(out / "step" / "events.sqlite",
                                 step_sim.config["trucks"][0]["load_time_s"])
@@ -258,8 +270,11 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
     summary.update(quick=quick, simulated_s=until,
                    storage_model=step_sim.config["stockpile"]["model"],
                    wall_s=step_summary["wall_s"] + ref_summary["wall_s"])
+    from cosim.plotstyle import run_label
+
     plot(step_sim.timeseries, ref_sim.timeseries, summary, out,
-         step_sim.config["simulation"]["sensor_window_s"])
+         step_sim.config["simulation"]["sensor_window_s"],
+         run=run_label(step_sim.config, scenario=name))
     failed = checks(summary)
     summary["checks_failed"] = failed
     summary = {key: None if isinstance(value, float) and not np.isfinite(value) else value

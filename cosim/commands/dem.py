@@ -75,7 +75,7 @@ def _finish(dem, out, label, wall, steps, n_particle_steps, discharged_kg, balan
     from surrogate.dem.plots import pile_pictures
 
     dem.save_checkpoint(out / "checkpoint.npz")
-    pile_pictures(dem.snapshot(), out, title=label)
+    pile_pictures(dem.snapshot(), out, run=label)
     summary = {
         "particles": dem.n,
         "dt_s": dem.dt,
@@ -114,6 +114,7 @@ class _Counter:
 
 
 def run_pile(args) -> int:
+    import math
     import time
     from pathlib import Path
 
@@ -143,15 +144,26 @@ def run_pile(args) -> int:
         dem = Dem(cfg, seed=args.seed)
     else:
         dem = packed_pile(cfg, args.particles, seed=args.seed)
-    counter = _Counter(Progress(sys.stderr, "dem pile"), dem)
+    from surrogate.dem.emitter import mean_particle_mass
+
+    # the expected end: the fill (its lots estimated from the mean particle mass),
+    # then the whole settling time (settling may stop earlier)
+    lots = math.ceil(args.particles * mean_particle_mass(cfg) / args.lot_kg)
+    longest = (lots * args.lot_interval if args.method == "pour" else 0.0) + args.settle_time
+    counter = _Counter(Progress(sys.stderr, "dem pile", total=dem.time + longest), dem)
     if args.snapshot_interval:
         counter.writer = SnapshotWriter(out / "snapshots", args.snapshot_interval)
     if args.method == "pour":
         pour_pile(dem, args.particles, lot_kg=args.lot_kg, lot_interval=args.lot_interval,
                   progress=counter)
     settle(dem, max_time=args.settle_time, progress=counter)
+    counter.progress.close(dem)
     wall = time.perf_counter() - start
-    return _finish(dem, out, "pile", wall, dem.steps_done, counter.particle_steps,
+    from cosim.plotstyle import run_label
+
+    label = run_label(scenario=f"dem pile ({args.method}, {args.particles} particles)",
+                      seed=args.seed, model="dem")
+    return _finish(dem, out, label, wall, dem.steps_done, counter.particle_steps,
                    dem.discharged_mass, dem.mass_balance_error())
 
 
@@ -175,7 +187,8 @@ def run_discharge(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     held0 = dem.held_mass()
     steps0 = dem.steps_done
-    counter = _Counter(Progress(sys.stderr, "dem discharge"), dem)
+    counter = _Counter(Progress(sys.stderr, "dem discharge",
+                                total=dem.time + args.duration), dem)
     if args.snapshot_interval:
         counter.writer = SnapshotWriter(out / "snapshots", args.snapshot_interval)
     chunk = 0.25
@@ -186,6 +199,7 @@ def run_discharge(args) -> int:
         dem.advance(min(chunk, end - dem.time))
         records.append(dem.discharged())
         counter(dem)
+    counter.progress.close(dem)
     wall = time.perf_counter() - start
     _write_discharged(out / "discharged.csv", records)
     discharged = float(sum(r["mass"].sum() for r in records))
@@ -193,7 +207,11 @@ def run_discharge(args) -> int:
     rate = discharged / args.duration
     print(f"dem discharge: {discharged:.0f} kg in {args.duration:g} s = {rate:.1f} kg/s "
           f"(setpoint {args.rate:g} kg/s)", file=sys.stderr)
-    return _finish(dem, out, "discharge", wall, dem.steps_done - steps0,
+    from cosim.plotstyle import run_label
+
+    label = run_label(scenario=f"dem discharge from {args.source} at {args.rate:g} kg/s",
+                      model="dem")
+    return _finish(dem, out, label, wall, dem.steps_done - steps0,
                    counter.particle_steps, discharged, balance)
 
 

@@ -193,42 +193,47 @@ def _warnings(log: Path) -> list[str]:
 
 
 def _plots(out: Path, ledger: dict, summary: dict) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import numpy as np
 
+    from cosim import plotstyle
+
+    plt = plotstyle.pyplot()
+    run = plotstyle.run_label(scenario="integration test (OPC UA process simulator)",
+                              seed=summary.get("seed"), model=summary.get("model"))
     rows = summary["history"]
     t = np.array([r["time_s"] for r in rows])
     mass = np.array([r["held_mass_kg"] for r in rows])
     grade = np.array([r["grade"] if r["grade"] is not None else np.nan for r in rows])
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    ax1.plot(t, mass / 1e3)
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    ax1.plot(t, mass / 1e3, label="held mass")
     ax1.set_ylabel("held mass [t]")
-    ax1.set_title("Stockpile SP201 (virtual sensors)")
-    ax2.plot(t, grade * 100)
+    ax1.set_ylim(0, None)
+    ax2.plot(t, grade * 100, color="tab:green", label="mass-weighted grade")
     ax2.set_ylabel("average grade [%]")
     ax2.set_xlabel("simulation time [s]")
+    for ax in (ax1, ax2):
+        plotstyle.legend(ax, loc="upper left")
+    plotstyle.title(fig, "Stockpile SP201 (virtual sensors over REST)", run)
     fig.tight_layout()
-    first = out / "stockpile_mass_grade.png"
-    fig.savefig(first, dpi=100)
-    plt.close(fig)
+    first = plotstyle.save(fig, out / "stockpile_mass_grade.png", dpi=100)
 
     log = ledger["outflow_log"]
-    sources = sorted({s for row in log for s in row["by_source"]}, key=int)
+    # every source delivered, also one none of whose ore has left yet
+    sources = sorted({*ledger.get("delivered_by_source", {}),
+                      *(s for row in log for s in row["by_source"])}, key=int)
     times = np.array([row["time_s"] for row in log])
-    fig, ax = plt.subplots(figsize=(8, 4))
+    fig, ax = plt.subplots(figsize=(8, 4.5))
     if log:
         cumulative = np.array([[row["by_source"].get(s, 0.0) for s in sources] for row in log])
         cumulative = np.cumsum(cumulative, axis=0) / 1e3
-        ax.stackplot(times, cumulative.T, labels=[f"source {s}" for s in sources])
-        ax.legend(loc="upper left")
+        ax.stackplot(times, cumulative.T,
+                     labels=[f"source {s}: {cumulative[-1, j]:.1f} t" for j, s in
+                             enumerate(sources)])
+        plotstyle.legend(ax, loc="upper left")
+    ax.set_xlim(0.0, max(float(ledger.get("time_s", 0.0)), 1.0))  # the whole run, not the outflow
     ax.set_xlabel("simulation time [s]")
     ax.set_ylabel("mass loaded onto CV301 [t]")
-    ax.set_title("Outgoing belt CV301: composition by source (cumulative)")
+    plotstyle.title(fig, "Outgoing belt CV301: composition by source (cumulative, stacked)", run)
     fig.tight_layout()
-    second = out / "cv301_composition.png"
-    fig.savefig(second, dpi=100)
-    plt.close(fig)
+    second = plotstyle.save(fig, out / "cv301_composition.png", dpi=100)
     return [first.name, second.name]

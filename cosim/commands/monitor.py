@@ -18,6 +18,10 @@ def register(subparsers) -> None:
                         help="port to serve on (8050; 0 picks a free one)")
     parser.add_argument("--host", default="127.0.0.1",
                         help="address to bind (127.0.0.1)")
+    parser.add_argument("--config", metavar="FILE",
+                        help="TOML with the stockpile capacity and alarm limits (see "
+                             "monitor/config.py; default capacity 2000 t, level 10-90 %%, "
+                             "grade 25-75 %%)")
     parser.set_defaults(handler=run)
 
 
@@ -27,15 +31,17 @@ def run(args) -> int:
     import sys
 
     from cosim.errors import ValidationError
+    from monitor.config import load_monitor_config
     from monitor.server import check_stockpile_url, serve_monitor
 
     check_stockpile_url(args.stockpile)
+    config = load_monitor_config(args.config)
     if not 0 <= args.port <= 65535:
         raise ValidationError("port", "an integer in [0, 65535]", f"got {args.port}")
 
     async def serve() -> int:
         try:
-            runner, port = await serve_monitor(args.stockpile, args.host, args.port)
+            runner, port = await serve_monitor(args.stockpile, args.host, args.port, config)
         except OSError as exc:
             print(f"minetwin monitor: error: cannot serve on {args.host}:{args.port}: {exc}",
                   file=sys.stderr)

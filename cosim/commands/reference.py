@@ -29,9 +29,9 @@ def register(subparsers) -> None:
     compare = sub.add_parser("compare", help="rerun SCENARIO and compare with a reference CSV")
     _common(compare)
     compare.add_argument("reference", type=Path, help="reference CSV (from `reference record`)")
-    compare.add_argument("--plots", type=Path, default=None,
-                         help="folder for PNG overlays of failing signals "
-                              "(default: FILE's folder/<FILE stem>-overlays)")
+    compare.add_argument("--out", type=Path, default=None, metavar="DIR",
+                         help="write PNG overlays of failing signals to DIR/overlays "
+                              "(default: none written)")
     compare.set_defaults(handler=run_compare)
 
 
@@ -129,8 +129,14 @@ def run_compare(args) -> int:
     print(report.table())
     if report.passed:
         return 0
-    plots = args.plots or args.reference.parent / f"{args.reference.stem}-overlays"
-    for path in report.plot_failures(plots):
-        print(f"overlay: {path}")
+    if args.out is None:
+        print("no overlays written: pass --out DIR to get DIR/overlays/<signal>.png",
+              file=sys.stderr)
+    else:
+        from cosim.plotstyle import run_label
+
+        label = run_label(run.config, scenario=args.scenario.stem, seed=args.seed)
+        for path in report.plot_failures(args.out / "overlays", run=label):
+            print(f"overlay: {path}")
     print(report.details(), file=sys.stderr)
     return 1

@@ -59,7 +59,8 @@ def run(args) -> int:
     try:
         _, summary = run_scenario(config, args.out, until=args.until, seed=args.seed,
                                   storage_model=args.storage_model, progress=not args.quiet,
-                                  before_run=_rest_server(args))
+                                  before_run=_rest_server(args),
+                                  scenario_name=Path(args.scenario).stem)
     except CosimulationError as exc:
         print(f"minetwin simulate: run failed: {exc}", file=sys.stderr)
         return 1

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from cosim.errors import ValidationError
+from cosim.plotstyle import signal_unit
 from cosim.testing.bands import SignalComparison, Tolerance, compare_signal
 from cosim.tomlfile import read_toml
 
@@ -164,6 +165,7 @@ class ComparisonReport:
             lo, hi = c.allowed_at(i) if i is not None else (float("nan"), float("nan"))
             rows.append({
                 "signal": c.name,
+                "unit": signal_unit(c.name),
                 "worst deviation": c.worst_deviation,
                 "at t [s]": f"{c.worst_time:g}",
                 "value": float(c.value[i]) if i is not None else float("nan"),
@@ -176,7 +178,7 @@ class ComparisonReport:
 
     def table(self) -> str:
         """A fixed-width table: one line per signal, its worst deviation and verdict."""
-        headers = ["signal", "worst deviation", "at t [s]", "value", "reference",
+        headers = ["signal", "unit", "worst deviation", "at t [s]", "value", "reference",
                    "band there", "outside", "result"]
         cells = [[_cell(row[h]) for h in headers] for row in self.rows()]
         widths = [max(len(h), *(len(r[j]) for r in cells)) for j, h in enumerate(headers)]
@@ -190,9 +192,10 @@ class ComparisonReport:
     def details(self) -> str:
         return "\n".join(c.message() for c in self.failed)
 
-    def plot_failures(self, directory) -> list[Path]:
-        """Write ``<signal>.png`` overlays (reference, band, result) of failing signals."""
-        return [plot_comparison(c, Path(directory)) for c in self.failed]
+    def plot_failures(self, directory, run: str | None = None) -> list[Path]:
+        """Write ``<signal>.png`` overlays (reference, band, result) of failing
+        signals; ``run`` names the run in their titles."""
+        return [plot_comparison(c, Path(directory), run) for c in self.failed]
 
 
 def _cell(value) -> str:
@@ -234,33 +237,31 @@ def compare(timeseries, reference: ReferenceResult, *, signals=None, tolerances=
     return ComparisonReport(comparisons=comparisons, reference=reference.source)
 
 
-def plot_comparison(comparison: SignalComparison, directory: Path) -> Path:
+def plot_comparison(comparison: SignalComparison, directory: Path,
+                    run: str | None = None) -> Path:
     """PNG overlay of one signal: reference, tolerance band, result, samples outside."""
-    import matplotlib
+    from cosim import plotstyle
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = plotstyle.pyplot()
     directory.mkdir(parents=True, exist_ok=True)
     safe = "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in comparison.name)
     path = directory / f"{safe}.png"
     c = comparison
-    fig, ax = plt.subplots(figsize=(9, 4.5), dpi=100)
+    unit = signal_unit(c.name)
+    fig, ax = plt.subplots(figsize=(9, 5))
     if c.time.size:
         ax.fill_between(c.time, c.lower, c.upper, color="tab:green", alpha=0.25,
-                        label=f"band ({c.tolerance.describe()})")
+                        label=f"tolerance band ({c.tolerance.describe()})")
         ax.plot(c.time, c.reference, color="tab:green", lw=1.2, label="reference")
         ax.plot(c.time, c.value, color="tab:blue", lw=1.0, label="this run")
         if c.outside.any():
             ax.plot(c.time[c.outside], c.value[c.outside], "x", color="tab:red", ms=4,
                     label=f"outside band ({c.n_outside} samples)")
     ax.set_xlabel("time [s]")
-    ax.set_ylabel(c.name)
-    ax.set_title(f"{c.name}: {'pass' if c.passed else 'FAIL'}"
-                 + (f" ({c.coverage_problem})" if c.coverage_problem else ""), fontsize=9)
-    ax.legend(fontsize=8, loc="best")
-    ax.grid(alpha=0.3)
+    ax.set_ylabel(f"{c.name} [{unit}]")
+    # below the axes, so that it never covers the band
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=4)
+    plotstyle.title(fig, f"{c.name}: {'pass' if c.passed else 'FAIL'} against the reference"
+                    + (f" ({c.coverage_problem})" if c.coverage_problem else ""), run)
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return plotstyle.save(fig, path, dpi=100)

@@ -1,7 +1,9 @@
 // MineTwin stockpile monitor: polls the stockpile's REST interface through the
-// monitor (/api/...) and draws everything on canvases by hand (no libraries,
-// no network besides the monitor). Units from the API are SI; the page shows
-// t, %, mm and t/h.
+// monitor (/api/...), the capacity and alarm limits from /monitor/config, and
+// draws the pile and feed on canvases and the trends with uPlot (served by the
+// monitor, /static/vendor/). Nothing loads from the network. The API is SI;
+// the page shows one unit per quantity: mass t, grade %, hardness [-]
+// (relative), D80 mm, rates t/h, time s.
 "use strict";
 
 const params = new URLSearchParams(window.location.search);
@@ -9,11 +11,17 @@ const POLL_MS = Math.max(200, Number(params.get("poll") || 1000));
 const FEED_HORIZON_S = 30;
 const PARTICLE_LIMIT = 6000;  // larger piles are thinned to about this many dots
 const HISTORY_KEEP = 20000;
+const EVENTS_KEEP = 5000;
+const EVENTS_SHOWN = 200;
+const ALARMS_SHOWN = 50;
+const STALE_MS = 5000;        // a value older than this is marked
 
 // Shared with tests and the curious: what the page shows right now.
 const state = window.monitorState = {
-  updates: 0, reachable: null, colourBy: "grade", lastTime: null,
-  history: [], particles: null, fields: null, feed: null,
+  updates: 0, reachable: null, colourBy: "grade", lastTime: null, config: null,
+  history: [], particles: null, fields: null, feed: null, totals: null,
+  events: [], lastSeq: 0, alarms: [], active: {}, restarts: [], zoom: null,
+  received: {}, charts: {}, scheme: null, originNames: new Map(),
 };
 
 const $ = (id) => document.getElementById(id);
@@ -23,7 +31,7 @@ async function getJSON(path) {
   const controller = new AbortController();
   const timer = setTimeout(() => controller.abort(), 4000);
   try {
-    const response = await fetch("/api/" + path, {signal: controller.signal, cache: "no-store"});
+    const response = await fetch(path, {signal: controller.signal, cache: "no-store"});
     const body = await response.json();
     if (!response.ok) throw new Error(body.error || ("HTTP " + response.status));
     return body;
@@ -32,41 +40,71 @@ async function getJSON(path) {
   }
 }
 
+const api = (path) => getJSON("/api/" + path);
+
 async function fetchAll() {
-  const totals = await getJSON("totals");
-  if (state.lastTime !== null && totals.time_s < state.lastTime) {
-    state.history = [];  // the stockpile restarted: a new run, new clock
-  }
+  const totals = await api("totals");
+  if (state.lastTime !== null && totals.time_s < state.lastTime) restarted(state.lastTime, totals.time_s);
   const since = state.history.length ? state.history[state.history.length - 1].time_s : -1e12;
-  const [history, particles, fields, feed] = await Promise.all([
-    getJSON("history?limit=" + HISTORY_KEEP + "&since=" + since),
-    getJSON("particles?limit=" + PARTICLE_LIMIT + "&stride=" +
-            Math.max(1, Math.ceil(totals.particle_count / PARTICLE_LIMIT))),
-    getJSON("fields?nx=36&ny=18&field=mass,velocity"),
-    getJSON("feed?horizon=" + FEED_HORIZON_S),
+  const [history, particles, fields, feed, events] = await Promise.all([
+    api("history?limit=" + HISTORY_KEEP + "&since=" + since),
+    api("particles?limit=" + PARTICLE_LIMIT + "&stride=" +
+        Math.max(1, Math.ceil(totals.particle_count / PARTICLE_LIMIT))),
+    api("fields?nx=36&ny=18&field=mass,velocity"),
+    api("feed?horizon=" + FEED_HORIZON_S),
+    api("events?since=" + state.lastSeq),
   ]);
-  return {totals, history, particles, fields, feed};
+  return {totals, history, particles, fields, feed, events};
+}
+
+// The stockpile's clock went back: a new run. Say so, and start the trends,
+// events and alarms afresh (what was shown belongs to the old run).
+function restarted(fromS, toS) {
+  const at = new Date();
+  state.restarts.push({from_s: fromS, to_s: toS, at: at.toISOString()});
+  state.history = [];
+  state.events = [];
+  state.lastSeq = 0;
+  state.zoom = null;
+  for (const id of Object.keys(state.active)) clearAlarm(id, null);
+  $("restart-detail").textContent =
+    `its clock went back from t = ${fromS.toFixed(1)} s to ${toS.toFixed(1)} s at ${clock(at)}; ` +
+    "trends, events and alarms start again with the new run.";
+  $("restart-banner").hidden = false;
 }
 
 async function poll() {
   let data = null;
   try {
+    if (!state.config) showConfig(await getJSON("/monitor/config"));
     data = await fetchAll();
   } catch (error) {
     showReachable(false, error);
   }
   if (data) {
+    const now = Date.now();
+    if (data.events.last_seq < state.lastSeq) {  // a new run whose clock had not gone back
+      state.events = [];
+    }
     state.history = state.history.concat(data.history.rows).slice(-HISTORY_KEEP);
+    state.events = state.events.concat(data.events.events).slice(-EVENTS_KEEP);
+    state.lastSeq = data.events.events.length
+      ? data.events.events[data.events.events.length - 1].seq : data.events.last_seq;
     Object.assign(state, {particles: data.particles, fields: data.fields, feed: data.feed,
-                          lastTime: data.totals.time_s});
+                          totals: data.totals, lastTime: data.totals.time_s});
+    for (const source of ["totals", "particles", "feed", "events"]) state.received[source] = now;
+    state.originNames = new Map((data.particles.origin_names || []).map((o) => [o.origin, o.name]));
     state.updates += 1;
     showReachable(true);
     // a drawing fault is a page bug, not an unreachable stockpile: report it
     try {
       showTotals(data.totals);
-      showFeed(data.feed);
+      checkAlarms(data.totals);
       drawPile();
-      drawCharts();
+      showFeed(data.feed);
+      drawTrends();
+      showEvents();
+      showAges();
     } catch (error) {
       console.error("monitor drawing failed:", error);
     }
@@ -85,13 +123,44 @@ function setNumber(id, raw, digits, scale = 1) {
   el.dataset.value = raw === null || raw === undefined ? "" : String(raw);
 }
 
+const pad2 = (n) => String(n).padStart(2, "0");
+function clock(date) {
+  return `${pad2(date.getHours())}:${pad2(date.getMinutes())}:${pad2(date.getSeconds())}`;
+}
+
+function fillPercent(totals) {
+  return 100 * totals.held_mass_kg / (1000 * state.config.stockpile.capacity_t);
+}
+
+function showConfig(config) {
+  state.config = config;
+  const a = config.alarms;
+  $("capacity").textContent = String(config.stockpile.capacity_t);
+  $("grade-band").textContent = `${a.grade_low_pct}–${a.grade_high_pct}`;
+  $("alarm-limits").textContent = `(from the monitor's config: level ${a.level_low_pct}–` +
+    `${a.level_high_pct} % of ${config.stockpile.capacity_t} t, grade ${a.grade_low_pct}–` +
+    `${a.grade_high_pct} %)`;
+  $("trend-range").value = String(config.trends.window_s);
+  if ($("trend-range").value === "") {  // a window not in the list: add it
+    const option = new Option(`last ${config.trends.window_s} s`, String(config.trends.window_s));
+    $("trend-range").add(option);
+    $("trend-range").value = option.value;
+  }
+}
+
 function showTotals(t) {
   setNumber("sim-time", t.time_s, 1);
   setNumber("held-mass", t.held_mass_kg, 3, 1e-3);
+  const fill = fillPercent(t);
+  setNumber("fill-pct", fill, 1);
+  $("fill-level").style.width = Math.min(Math.max(fill, 0), 100) + "%";
   setNumber("grade", t.grade, 2, 100);
   setNumber("hardness", t.hardness, 3);
   setNumber("d80", t.d80_m, 1, 1e3);
   setNumber("discharge-rate", t.discharge_rate_kg_s, 0, 3.6);
+  setNumber("discharge-actual", t.discharge_actual_kg_s, 0, 3.6);
+  setNumber("discharge-ratio", t.discharge_rate_kg_s > 0
+    ? 100 * t.discharge_actual_kg_s / t.discharge_rate_kg_s : null, 0);
   setNumber("particle-count", t.particle_count, 0);
 }
 
@@ -113,10 +182,110 @@ function showReachable(ok, error) {
   $("unreachable-banner").hidden = ok;
   $("main").classList.toggle("stale", !ok);
   $("last-time").textContent = fmt(state.lastTime, 1);
+  showAges();
+}
+
+// The wall-clock time each value was received, and its age now.
+function showAges() {
+  const now = Date.now();
+  const last = state.received.totals;
+  $("update-clock").textContent = last ? `${clock(new Date(last))} (${((now - last) / 1000).toFixed(1)} s ago)` : "–";
+  for (const el of document.querySelectorAll(".kpi-age")) {
+    const at = state.received[el.dataset.source];
+    if (!at) continue;
+    el.textContent = `received ${clock(new Date(at))}, ${((now - at) / 1000).toFixed(1)} s ago`;
+    el.classList.toggle("old", now - at > STALE_MS);
+  }
+}
+
+// ------------------------------------------------------------------- alarms
+// Raised while a limit of the monitor's config is passed, cleared when the
+// value is back inside (no dead band). Grade alarms wait while the pile is empty.
+const ALARMS = [
+  {id: "level_high", name: "LEVEL HIGH", unit: "% of capacity",
+   value: (t) => fillPercent(t), limit: (a) => a.level_high_pct, passed: (v, l) => v > l, sign: ">"},
+  {id: "level_low", name: "LEVEL LOW", unit: "% of capacity",
+   value: (t) => fillPercent(t), limit: (a) => a.level_low_pct, passed: (v, l) => v < l, sign: "<"},
+  {id: "grade_high", name: "GRADE HIGH", unit: "%",
+   value: (t) => t.grade === null ? null : 100 * t.grade, limit: (a) => a.grade_high_pct,
+   passed: (v, l) => v > l, sign: ">"},
+  {id: "grade_low", name: "GRADE LOW", unit: "%",
+   value: (t) => t.grade === null ? null : 100 * t.grade, limit: (a) => a.grade_low_pct,
+   passed: (v, l) => v < l, sign: "<"},
+];
+
+function checkAlarms(totals) {
+  const limits = state.config.alarms;
+  for (const alarm of ALARMS) {
+    const value = alarm.value(totals);
+    if (value === null || !Number.isFinite(value)) continue;
+    const limit = alarm.limit(limits);
+    const passed = alarm.passed(value, limit);
+    if (passed && !state.active[alarm.id]) {
+      const entry = {id: alarm.id, name: alarm.name, state: "ACTIVE", value, unit: alarm.unit,
+                     limit: `${alarm.sign} ${limit} ${alarm.unit}`,
+                     raised_s: totals.time_s, raised_at: new Date(), cleared_s: null, cleared_at: null};
+      state.alarms.push(entry);
+      state.active[alarm.id] = entry;
+    } else if (!passed && state.active[alarm.id]) {
+      clearAlarm(alarm.id, totals.time_s);
+    }
+  }
+  state.alarms = state.alarms.slice(-ALARMS_SHOWN);
+  showAlarms();
+}
+
+function clearAlarm(id, timeS) {
+  const entry = state.active[id];
+  Object.assign(entry, {state: "CLEARED", cleared_s: timeS, cleared_at: new Date()});
+  delete state.active[id];
+}
+
+function showAlarms() {
+  const active = Object.keys(state.active).length;
+  const badge = $("alarm-count");
+  badge.className = "status " + (active ? "alarm" : "waiting");
+  badge.textContent = active ? `${active} ALARM${active > 1 ? "S" : ""}` : "NO ALARM";
+  badge.dataset.value = String(active);
+  const rows = state.alarms.slice().reverse().map((a) => {
+    const tr = document.createElement("tr");
+    tr.dataset.alarm = a.id;
+    tr.dataset.state = a.state;
+    const cells = [a.state, a.name, a.limit, `${a.value.toFixed(1)} ${a.unit}`,
+                   `${a.raised_s.toFixed(1)}, ${clock(a.raised_at)}`,
+                   a.cleared_at ? `${a.cleared_s === null ? "restart" : a.cleared_s.toFixed(1)}, ${clock(a.cleared_at)}` : "–"];
+    for (const text of cells) tr.appendChild(document.createElement("td")).textContent = text;
+    return tr;
+  });
+  $("alarm-list").replaceChildren(...rows);
+}
+
+// ------------------------------------------------------------------- events
+function sourceName(source) {
+  if (source === null || source === undefined) return "–";
+  return state.originNames.get(source) || `source ${source}`;
+}
+
+function showEvents() {
+  const lots = {in: [0, 0], out: [0, 0]};
+  for (const e of state.events) { lots[e.kind][0] += 1; lots[e.kind][1] += e.mass_kg; }
+  $("event-summary").textContent = `lots in: ${lots.in[0]} (${(lots.in[1] / 1000).toFixed(1)} t); ` +
+    `out: ${lots.out[0]} events (${(lots.out[1] / 1000).toFixed(1)} t); newest first`;
+  const rows = state.events.slice(-EVENTS_SHOWN).reverse().map((e) => {
+    const tr = document.createElement("tr");
+    Object.assign(tr.dataset, {seq: e.seq, kind: e.kind, trackingId: e.tracking_id ?? "",
+                               mass: e.mass_kg});
+    const cells = [e.seq, e.time_s.toFixed(1), e.kind === "in" ? "IN" : "OUT",
+                   e.tracking_id ?? "–", (e.mass_kg / 1000).toFixed(3), fmt(e.grade, 2, 100),
+                   sourceName(e.source), e.particle_count];
+    for (const text of cells) tr.appendChild(document.createElement("td")).textContent = String(text);
+    return tr;
+  });
+  $("event-list").replaceChildren(...rows);
 }
 
 // ------------------------------------------------------------------ colours
-// Viridis-like ramp (9 stops), perceptually ordered; categorical for origin.
+// Viridis-like ramp (10 stops), perceptually ordered; categorical for origin.
 const RAMP = [[68, 1, 84], [72, 40, 120], [62, 74, 137], [49, 104, 142], [38, 130, 142],
               [31, 158, 137], [53, 183, 121], [109, 205, 89], [180, 222, 44], [253, 231, 37]];
 const CATEGORIES = ["#4e79a7", "#f28e2b", "#e15759", "#76b7b2", "#59a14f", "#edc948",
@@ -130,43 +299,62 @@ function rampColour(u) {
   return `rgb(${c[0]},${c[1]},${c[2]})`;
 }
 
+// Shown value and unit of each colouring (grade in %, like everywhere else).
+const SHOWN = {grade: {scale: 100, label: "grade [%]", digits: 0},
+               hardness: {scale: 1, label: "hardness [-]", digits: 3},
+               residence_time: {scale: 1, label: "residence time [s]", digits: 0},
+               origin: {scale: 1, label: "origin", digits: 0}};
+// Origins too many to name (the mine simulator's: where in the ore body each
+// particle was mined) are coloured on a ramp along x.
+const ORIGIN_RAMP_LABEL = "origin: x where the ore was mined [m]";
+
 function colouring(values, attribute) {
   const finite = values.filter((v) => v !== null && Number.isFinite(v));
   const distinct = [...new Set(finite)].sort((a, b) => a - b);
   if (attribute === "origin" && distinct.length <= CATEGORIES.length) {
     const index = new Map(distinct.map((v, i) => [v, i]));
-    return {categorical: distinct, colour: (v) => CATEGORIES[index.get(v) ?? 0]};
+    return {attribute, categorical: distinct, colour: (v) => CATEGORIES[index.get(v) ?? 0]};
   }
   let lo = finite.length ? Math.min(...finite) : 0, hi = finite.length ? Math.max(...finite) : 1;
   if (attribute === "grade") { lo = 0; hi = 1; }
   if (attribute === "residence_time") lo = 0;
   if (!(hi > lo)) hi = lo + 1;
-  return {lo, hi, colour: (v) => rampColour((v - lo) / (hi - lo))};
+  return {attribute, lo, hi, colour: (v) => rampColour((v - lo) / (hi - lo))};
 }
-
-const LABELS = {grade: "grade [-]", hardness: "hardness [-]",
-                residence_time: "residence time [s]", origin: "origin"};
 
 function drawLegend(scheme, attribute) {
   const bar = $("colour-bar"), ctx = bar.getContext("2d");
   ctx.clearRect(0, 0, bar.width, bar.height);
+  const shown = SHOWN[attribute];
   if (scheme.categorical) {
-    const w = bar.width / scheme.categorical.length;
-    scheme.categorical.forEach((v, i) => {
-      ctx.fillStyle = scheme.colour(v);
-      ctx.fillRect(i * w, 0, w - 2, bar.height);
-    });
-    $("legend-min").textContent = "source " + scheme.categorical.join(", ");
+    bar.hidden = true;
+    $("legend-min").replaceChildren(...scheme.categorical.map((v) => {
+      const item = document.createElement("span");
+      const swatch = item.appendChild(document.createElement("span"));
+      swatch.className = "swatch";
+      swatch.style.background = scheme.colour(v);
+      item.appendChild(document.createTextNode(sourceName(v)));
+      return item;
+    }));
     $("legend-max").textContent = "";
   } else {
+    bar.hidden = false;
     for (let x = 0; x < bar.width; x++) {
       ctx.fillStyle = rampColour(x / (bar.width - 1));
       ctx.fillRect(x, 0, 1, bar.height);
     }
-    $("legend-min").textContent = scheme.lo.toPrecision(3);
-    $("legend-max").textContent = scheme.hi.toPrecision(3);
+    const ends = attribute === "origin" ? [" m (left)", " m (right)"] : ["", ""];
+    $("legend-min").textContent = (scheme.lo * shown.scale).toFixed(shown.digits) + ends[0];
+    $("legend-max").textContent = (scheme.hi * shown.scale).toFixed(shown.digits) + ends[1];
   }
-  $("legend-label").textContent = LABELS[attribute];
+  $("legend-label").textContent = attribute === "origin" && !scheme.categorical
+    ? ORIGIN_RAMP_LABEL : shown.label;
+}
+
+// 1, 2 or 5 times a power of ten, the largest not above x.
+function niceBelow(x) {
+  const p = Math.pow(10, Math.floor(Math.log10(x)));
+  return [5, 2, 1].map((m) => m * p).find((v) => v <= x) || p;
 }
 
 // --------------------------------------------------------------------- pile
@@ -177,6 +365,16 @@ function drawPile() {
   ctx.clearRect(0, 0, canvas.width, canvas.height);
   canvas.dataset.colourBy = attribute;
   if (!p || !fields) return;
+  const schematic = (p.layout || fields.layout) === "schematic";
+  canvas.dataset.layout = schematic ? "schematic" : "particles";
+  $("pile-title").textContent = schematic
+    ? "Pile cross-section — SCHEMATIC (not a flow simulation)"
+    : "Pile cross-section — particle positions";
+  $("pile-note").textContent = schematic
+    ? "This storage model has no geometry: each dot is a pseudo-particle placed by its rank " +
+      "in the order of leaving (nearer the outlet leaves sooner), in a half disc of the " +
+      "display radius. Arrows: the speed at which that order drains."
+    : "Each dot is a pseudo-particle at its position in the storage model (x horizontal, y up).";
   // World box: the field grid (it spans the pile) plus every particle drawn.
   let x0 = fields.x_edges[0], x1 = fields.x_edges[fields.x_edges.length - 1];
   let y0 = fields.y_edges[0], y1 = fields.y_edges[fields.y_edges.length - 1];
@@ -184,7 +382,7 @@ function drawPile() {
     x0 = Math.min(x0, p.x[i]); x1 = Math.max(x1, p.x[i]);
     y0 = Math.min(y0, p.y[i]); y1 = Math.max(y1, p.y[i]);
   }
-  const pad = 28;
+  const pad = 34;
   const scale = Math.min((canvas.width - 2 * pad) / Math.max(x1 - x0, 1e-6),
                          (canvas.height - 2 * pad) / Math.max(y1 - y0, 1e-6));
   const ox = (canvas.width - scale * (x1 - x0)) / 2, oy = canvas.height - pad;
@@ -193,9 +391,14 @@ function drawPile() {
   // floor and outlet line
   ctx.strokeStyle = "#56626e"; ctx.lineWidth = 2;
   ctx.beginPath(); ctx.moveTo(pad / 2, sy(y0) + 4); ctx.lineTo(canvas.width - pad / 2, sy(y0) + 4); ctx.stroke();
+  if (schematic) {
+    ctx.fillStyle = "#c9d1d9"; ctx.font = "12px sans-serif";
+    ctx.fillText("▼ outlet", sx(0) - 24, sy(y0) + 18);
+  }
 
   const values = p[attribute] || [];
   const scheme = colouring(values, attribute);
+  state.scheme = scheme;
   const radius = Math.max(1.5, Math.min(6, 0.45 * Math.sqrt((scale * scale * (x1 - x0) * (y1 - y0)) / Math.max(p.x.length, 1))));
   for (let i = 0; i < p.x.length; i++) {
     ctx.fillStyle = scheme.colour(values[i]);
@@ -207,8 +410,25 @@ function drawPile() {
   drawLegend(scheme, attribute);
   $("particle-note").textContent = p.total > p.x.length
     ? `showing ${p.x.length} of ${p.total} particles` : `${p.total} particles`;
-
+  drawMetreScale(ctx, canvas, scale);
   if ($("show-velocity").checked) drawVelocity(ctx, fields, sx, sy, scale);
+}
+
+// A scale bar of a round number of metres, about a fifth of the picture wide.
+function drawMetreScale(ctx, canvas, scale) {
+  const metres = niceBelow(0.2 * canvas.width / scale);
+  const length = metres * scale, x = canvas.width - 20 - length, y = canvas.height - 10;
+  ctx.strokeStyle = "#e6edf3"; ctx.fillStyle = "#e6edf3"; ctx.lineWidth = 2;
+  ctx.beginPath();
+  ctx.moveTo(x, y - 5); ctx.lineTo(x, y); ctx.lineTo(x + length, y); ctx.lineTo(x + length, y - 5);
+  ctx.stroke();
+  ctx.font = "12px sans-serif";
+  ctx.fillText(`${metres} m`, x + length / 2 - 12, y - 6);
+  canvas.dataset.scaleMetres = String(metres);
+}
+
+function speedText(v) {
+  return v >= 1 ? `${v.toPrecision(3)} m/s` : `${(v * 1000).toPrecision(3)} mm/s`;
 }
 
 function drawVelocity(ctx, fields, sx, sy, scale) {
@@ -226,94 +446,240 @@ function drawVelocity(ctx, fields, sx, sy, scale) {
   const vmax = speeds.length ? speeds[speeds.length - 1] : 0;
   if (!(vref > 0)) return;
   const cell = Math.min(fields.x_edges[1] - fields.x_edges[0], fields.y_edges[1] - fields.y_edges[0]);
-  const k = 0.8 * cell * scale / vref;
+  const k = 0.8 * cell * scale / vref;  // pixels per (m/s)
   const cap = 1.3 * cell * scale;
   ctx.strokeStyle = "rgba(255,255,255,0.9)"; ctx.fillStyle = ctx.strokeStyle; ctx.lineWidth = 1.3;
-  for (let j = 0; j < ny; j++) for (let i = 0; i < nx; i++) {
-    const u = vx[j][i], v = vy[j][i];
-    if (u === null || v === null || Math.hypot(u, v) < 0.02 * vref) continue;
-    const cx = sx((fields.x_edges[i] + fields.x_edges[i + 1]) / 2);
-    const cy = sy((fields.y_edges[j] + fields.y_edges[j + 1]) / 2);
-    const shrink = Math.min(1, cap / (Math.hypot(u, v) * k));
-    const dx = u * k * shrink, dy = -v * k * shrink, len = Math.hypot(dx, dy);
-    const hx = dx / len, hy = dy / len, head = Math.min(5, 0.4 * len);
+  const arrow = (cx, cy, dx, dy) => {
+    const len = Math.hypot(dx, dy), hx = dx / len, hy = dy / len, head = Math.min(5, 0.4 * len);
     ctx.beginPath(); ctx.moveTo(cx - dx / 2, cy - dy / 2); ctx.lineTo(cx + dx / 2, cy + dy / 2); ctx.stroke();
     ctx.beginPath();
     ctx.moveTo(cx + dx / 2, cy + dy / 2);
     ctx.lineTo(cx + dx / 2 - head * (hx - 0.5 * hy), cy + dy / 2 - head * (hy + 0.5 * hx));
     ctx.lineTo(cx + dx / 2 - head * (hx + 0.5 * hy), cy + dy / 2 - head * (hy - 0.5 * hx));
     ctx.fill();
+  };
+  for (let j = 0; j < ny; j++) for (let i = 0; i < nx; i++) {
+    const u = vx[j][i], v = vy[j][i];
+    if (u === null || v === null || Math.hypot(u, v) < 0.02 * vref) continue;
+    const cx = sx((fields.x_edges[i] + fields.x_edges[i + 1]) / 2);
+    const cy = sy((fields.y_edges[j] + fields.y_edges[j + 1]) / 2);
+    const shrink = Math.min(1, cap / (Math.hypot(u, v) * k));
+    arrow(cx, cy, u * k * shrink, -v * k * shrink);
   }
+  // key: a sample arrow of a round speed
+  const vkey = niceBelow(vref);
+  arrow(10 + vkey * k / 2, 14, vkey * k, 0);
   ctx.fillStyle = "#c9d1d9"; ctx.font = "12px sans-serif";
-  ctx.fillText(`arrows: velocity (0.8 cell = ${(vref * 1000).toPrecision(3)} mm/s; ` +
-               `fastest ${(vmax * 1000).toPrecision(3)} mm/s, capped)`, 10, 16);
+  ctx.fillText(`= ${speedText(vkey)}   velocity (fastest ${speedText(vmax)}; ` +
+               "arrows longer than 1.3 cells are drawn at 1.3 cells)", 18 + vkey * k, 18);
+  $("pile").dataset.velocityKey = String(vkey);
 }
 
-// ------------------------------------------------------------------- charts
-function lineChart(canvas, times, values, colour, digits) {
-  const ctx = canvas.getContext("2d"), w = canvas.width, h = canvas.height;
-  ctx.clearRect(0, 0, w, h);
-  const left = 48, right = 8, top = 8, bottom = 20;
-  const pts = [];
-  for (let i = 0; i < times.length; i++) if (values[i] !== null && Number.isFinite(values[i])) pts.push([times[i], values[i]]);
-  ctx.strokeStyle = "#2a3540"; ctx.strokeRect(left, top, w - left - right, h - top - bottom);
-  if (pts.length === 0) return;
-  let t0 = pts[0][0], t1 = pts[pts.length - 1][0];
-  let lo = Math.min(...pts.map((q) => q[1])), hi = Math.max(...pts.map((q) => q[1]));
-  if (!(t1 > t0)) t1 = t0 + 1;
-  // a flat series (up to rounding noise) gets a band of +-5 % around it
-  if (!(hi - lo > 1e-9 * Math.max(Math.abs(hi), 1))) {
-    const mid = (hi + lo) / 2, m = Math.abs(mid) * 0.05 || 1; lo = mid - m; hi = mid + m;
+// ------------------------------------------------------------------- trends
+const MUTED = "#8b98a5", GRID = "#2a3540", LIMIT = "#ff7b72";
+const rowsOf = (key, scale = 1) => (r) => (r[key] === null ? null : r[key] * scale);
+
+// One trend per tile. zero: the y axis starts at 0; minSpan: a flat signal
+// is drawn in a band at least this fraction of its value wide, not stretched.
+const TRENDS = [
+  {id: "mass", title: "Held mass", unit: "t", digits: 2, zero: true,
+   series: [{label: "held mass", value: rowsOf("held_mass_kg", 1e-3), colour: "#f0b429"}],
+   limits: (c) => [["high level", c.alarms.level_high_pct / 100 * c.stockpile.capacity_t],
+                   ["low level", c.alarms.level_low_pct / 100 * c.stockpile.capacity_t]]},
+  {id: "grade", title: "Grade", unit: "%", digits: 2, range: [0, 100],
+   series: [{label: "grade", value: rowsOf("grade", 100), colour: "#3fb950"}],
+   limits: (c) => [["grade high", c.alarms.grade_high_pct], ["grade low", c.alarms.grade_low_pct]]},
+  {id: "hardness", title: "Hardness (relative)", unit: "-", digits: 3, minSpan: 0.1,
+   series: [{label: "hardness", value: rowsOf("hardness"), colour: "#58a6ff"}]},
+  {id: "d80", title: "D80", unit: "mm", digits: 1, zero: true,
+   series: [{label: "D80", value: rowsOf("d80_m", 1e3), colour: "#d2a8ff"}]},
+  {id: "discharge", title: "Discharge rate", unit: "t/h", digits: 0, zero: true,
+   series: [{label: "actual", value: rowsOf("discharge_actual_kg_s", 3.6), colour: "#ffa657"},
+            {label: "setpoint", value: rowsOf("discharge_rate_kg_s", 3.6), colour: "#e6edf3", dash: [6, 4]}]},
+  {id: "particles", title: "Particles held", unit: "count", digits: 0, zero: true,
+   series: [{label: "particles", value: rowsOf("particle_count"), colour: "#79c0ff"}]},
+];
+
+// The range of a trend's own series (not its limit lines) over the x range shown.
+function visibleExtent(u, trend) {
+  const x = u.data[0], xmin = u.scales.x.min, xmax = u.scales.x.max;
+  let lo = Infinity, hi = -Infinity;
+  for (let s = 1; s <= trend.series.length; s++) {
+    const ys = u.data[s] || [];
+    for (let i = 0; i < x.length; i++) {
+      if (ys[i] === null || x[i] < xmin || x[i] > xmax) continue;
+      lo = Math.min(lo, ys[i]); hi = Math.max(hi, ys[i]);
+    }
   }
-  const X = (t) => left + (t - t0) / (t1 - t0) * (w - left - right);
-  const Y = (v) => h - bottom - (v - lo) / (hi - lo) * (h - top - bottom);
-  ctx.fillStyle = "#8b98a5"; ctx.font = "11px sans-serif";
-  ctx.fillText(hi.toFixed(digits), 2, top + 9);
-  ctx.fillText(lo.toFixed(digits), 2, h - bottom);
-  ctx.fillText(t0.toFixed(0) + " s", left, h - 5);
-  ctx.fillText(t1.toFixed(0) + " s", w - right - 40, h - 5);
-  ctx.strokeStyle = colour; ctx.lineWidth = 2; ctx.beginPath();
-  pts.forEach(([t, v], i) => (i ? ctx.lineTo(X(t), Y(v)) : ctx.moveTo(X(t), Y(v))));
-  ctx.stroke();
+  return [lo, hi];
 }
 
-function drawCharts() {
+function yRange(trend) {
+  return (u) => {
+    if (trend.range) return trend.range;
+    const [lo, hi] = visibleExtent(u, trend);
+    if (!Number.isFinite(lo)) return [0, 1];
+    if (trend.zero) return [0, hi > 0 ? hi * 1.1 : 1];
+    const mid = (lo + hi) / 2, span = Math.max(hi - lo, trend.minSpan * Math.abs(mid), 1e-9);
+    return [mid - 0.6 * span, mid + 0.6 * span];
+  };
+}
+
+function makeTrend(trend) {
+  const box = document.createElement("div");
+  box.className = "trend";
+  box.id = "trend-" + trend.id;
+  $("trend-grid").appendChild(box);
+  const limits = trend.limits ? trend.limits(state.config) : [];
+  const value = (u, v) => (v === null || v === undefined ? "–" : v.toFixed(trend.digits));
+  const axis = {stroke: MUTED, grid: {stroke: GRID, width: 1}, ticks: {stroke: GRID, width: 1}};
+  const series = [{label: "t [s]", value: (u, v) => (v === null ? "–" : v.toFixed(1))},
+    ...trend.series.map((s) => ({label: `${s.label} [${trend.unit}]`, stroke: s.colour, width: 2,
+                                 dash: s.dash, value})),
+    ...limits.map(([label]) => ({label: `${label} [${trend.unit}]`, stroke: LIMIT, width: 1,
+                                 dash: [3, 3], value}))];
+  const chart = new uPlot({
+    title: `${trend.title} [${trend.unit}]`,
+    width: Math.max(box.clientWidth, 200), height: 200,
+    scales: {x: {time: false}, y: {range: yRange(trend)}},
+    axes: [{...axis, label: "simulation time [s]", labelSize: 16, size: 36},
+           {...axis, label: `${trend.title} [${trend.unit}]`, labelSize: 16, size: 58}],
+    series,
+    cursor: {drag: {x: true, y: false, setScale: false}},
+    hooks: {setSelect: [(u) => {
+      if (u.select.width > 3) {
+        zoomTo(u.posToVal(u.select.left, "x"), u.posToVal(u.select.left + u.select.width, "x"));
+      }
+      u.setSelect({left: 0, top: 0, width: 0, height: 0}, false);
+    }]},
+  }, [[], ...series.slice(1).map(() => [])], box);
+  chart.over.addEventListener("dblclick", () => zoomTo(null));
+  chart.trend = trend;
+  chart.limitValues = limits.map(([, v]) => v);
+  state.charts[trend.id] = chart;
+}
+
+function zoomTo(min, max) {
+  state.zoom = min === null || !(max > min) ? null : {min, max};
+  $("zoom-reset").disabled = state.zoom === null;
+  $("zoom-note").textContent = state.zoom
+    ? `zoomed to t = ${min.toFixed(1)}–${max.toFixed(1)} s (double-click a trend or reset)`
+    : "drag across a trend to zoom";
+  applyXRange();
+}
+
+// Zoom (by dragging) wins over the time-range selection, which follows the newest value.
+function xRange() {
+  const rows = state.history;
+  if (state.zoom) return state.zoom;
+  if (!rows.length) return null;
+  const t0 = rows[0].time_s, t1 = rows[rows.length - 1].time_s;
+  const window = Number($("trend-range").value);
+  const min = window > 0 ? Math.max(t0, t1 - window) : t0;
+  return {min, max: t1 > min ? t1 : min + 1};
+}
+
+function applyXRange() {
+  const range = xRange();
+  if (!range) return;
+  for (const chart of Object.values(state.charts)) chart.setScale("x", range);
+}
+
+function drawTrends() {
+  if (!Object.keys(state.charts).length) TRENDS.forEach(makeTrend);
   const rows = state.history, t = rows.map((r) => r.time_s);
-  lineChart($("chart-mass"), t, rows.map((r) => r.held_mass_kg / 1000), "#f0b429", 1);
-  lineChart($("chart-grade"), t, rows.map((r) => r.grade === null ? null : r.grade * 100), "#3fb950", 1);
-  lineChart($("chart-hardness"), t, rows.map((r) => r.hardness), "#58a6ff", 2);
+  for (const chart of Object.values(state.charts)) {
+    const data = [t, ...chart.trend.series.map((s) => rows.map(s.value)),
+                  ...chart.limitValues.map((v) => t.map(() => v))];
+    chart.setData(data, false);
+  }
+  applyXRange();
 }
 
+// The trends' data as CSV: the /history rows this page holds, every column in SI.
+function historyCSV() {
+  const rows = state.history;
+  if (!rows.length) return "";
+  const keys = Object.keys(rows[0]);
+  const lines = [keys.join(",")];
+  for (const row of rows) lines.push(keys.map((k) => (row[k] === null ? "" : String(row[k]))).join(","));
+  return lines.join("\n") + "\n";
+}
+
+function exportCSV() {
+  const blob = new Blob([historyCSV()], {type: "text/csv"});
+  const link = document.createElement("a");
+  link.href = URL.createObjectURL(blob);
+  link.download = "stockpile_history.csv";
+  document.body.appendChild(link);
+  link.click();
+  link.remove();
+  setTimeout(() => URL.revokeObjectURL(link.href), 1000);
+}
+
+// --------------------------------------------------------------- feed chart
+// Bars: mass [t] predicted to leave per interval; colour: the pile's colouring
+// when the prediction has that attribute (grade, hardness), else neutral.
 function drawFeedChart(feed) {
   const canvas = $("feed-chart"), ctx = canvas.getContext("2d"), w = canvas.width, h = canvas.height;
   ctx.clearRect(0, 0, w, h);
   const profile = feed.profile;
-  ctx.fillStyle = "#8b98a5"; ctx.font = "11px sans-serif";
+  ctx.fillStyle = MUTED; ctx.font = "11px sans-serif";
   if (!profile || !profile.t_s.length) {
     ctx.fillText("no per-interval prediction from this stockpile", 4, h / 2);
     return;
   }
-  const n = profile.t_s.length, bottom = 16, barW = w / n;
-  const mmax = Math.max(...profile.mass_kg.map((m) => m || 0), 0);
+  const n = profile.t_s.length, left = 46, right = 8, top = 8, bottom = 30;
+  const interval = profile.t_s[0];
+  const masses = profile.mass_kg.map((m) => (m || 0) / 1000);
+  const mmax = Math.max(...masses, 0);
   if (!(mmax > 0)) {
     ctx.fillText("nothing predicted to leave (feeder stopped or pile empty)", 4, h / 2);
+    $("feed-caption").textContent = "";
     return;
   }
-  for (let i = 0; i < n; i++) {
-    const m = profile.mass_kg[i] || 0, g = profile.grade[i];
-    const bh = (h - bottom - 4) * m / mmax;
-    ctx.fillStyle = g === null ? "#444" : rampColour(g);
-    ctx.fillRect(i * barW + 1, h - bottom - bh, barW - 2, bh);
+  const step = niceBelow(mmax / 2), ytop = Math.ceil(mmax / step) * step;
+  const Y = (m) => h - bottom - (h - top - bottom) * m / ytop;
+  const barW = (w - left - right) / n;
+  const attribute = state.colourBy;
+  const coloured = profile[attribute] !== undefined && state.scheme && !state.scheme.categorical;
+  ctx.strokeStyle = GRID; ctx.lineWidth = 1;
+  for (let m = 0; m <= ytop + 1e-9; m += step) {
+    ctx.beginPath(); ctx.moveTo(left, Y(m)); ctx.lineTo(w - right, Y(m)); ctx.stroke();
+    ctx.fillText(`${m.toPrecision(2)} t`, 2, Y(m) + 4);
   }
-  ctx.fillStyle = "#8b98a5";
-  ctx.fillText("now", 2, h - 3);
-  ctx.fillText(`+${profile.t_s[n - 1].toFixed(0)} s  (bar: mass, colour: grade)`, w - 190, h - 3);
+  for (let i = 0; i < n; i++) {
+    const value = coloured ? profile[attribute][i] : null;
+    ctx.fillStyle = coloured ? (value === null ? "#444" : state.scheme.colour(value)) : "#6e7681";
+    ctx.fillRect(left + i * barW + 1, Y(masses[i]), barW - 2, Y(0) - Y(masses[i]));
+  }
+  ctx.fillStyle = MUTED;
+  for (let s = 0; s <= profile.t_s[n - 1] + 1e-9; s += 10) {
+    const x = left + (w - left - right) * s / profile.t_s[n - 1];
+    ctx.fillText(String(s), x - 4, h - bottom + 12);
+  }
+  ctx.fillText("time from now [s]", left + (w - left - right) / 2 - 40, h - 4);
+  $("feed-caption").textContent = coloured
+    ? `bar height: mass leaving per ${interval.toPrecision(2)} s; colour: ${SHOWN[attribute].label} on the pile's colour bar`
+    : `bar height: mass leaving per ${interval.toPrecision(2)} s; grey: the prediction has no ` +
+      `${SHOWN[attribute].label} per interval (colour by grade or hardness to colour the bars)`;
 }
 
 // -------------------------------------------------------------------- start
 $("colour-by").addEventListener("change", (event) => {
   state.colourBy = event.target.value;
   drawPile();
+  if (state.feed) drawFeedChart(state.feed);
 });
 $("show-velocity").addEventListener("change", drawPile);
+$("trend-range").addEventListener("change", applyXRange);
+$("zoom-reset").addEventListener("click", () => zoomTo(null));
+$("export-csv").addEventListener("click", exportCSV);
+$("restart-dismiss").addEventListener("click", () => { $("restart-banner").hidden = true; });
+window.addEventListener("resize", () => {
+  for (const chart of Object.values(state.charts)) {
+    chart.setSize({width: Math.max(chart.root.parentElement.clientWidth, 200), height: 200});
+  }
+});
+setInterval(showAges, 500);
 poll();

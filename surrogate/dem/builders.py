@@ -136,20 +136,28 @@ def packed_pile(cfg: DemConfig, n_particles: int, seed: int = 0, angle_deg: floa
 
 
 class Progress:
-    """Prints DEM progress to a stream (stderr) at most every ``every`` seconds of wall time."""
+    """DEM progress on ``stream`` (stderr) through ``cosim.progress``: the
+    simulated time against ``total`` [s] (None: unknown), with the particles,
+    steps and held mass, at most every ``every`` seconds of wall time."""
 
-    def __init__(self, stream, label: str, every: float = 2.0):
-        self.stream = stream
-        self.label = label
-        self.every = every
-        self.start = walltime.perf_counter()
-        self.last = self.start
+    COMPILE_NOTE = ("the first steps compile the DEM kernels (numba, cached for later runs): "
+                    "up to about a minute without progress lines")
+
+    def __init__(self, stream, label: str, every: float = 2.0, total: float | None = None):
+        from cosim.progress import Progress as Lines
+
+        self.lines = Lines(label, total, stream=stream, every_s=every)
+        self.lines.note(self.COMPILE_NOTE)
 
     def __call__(self, dem: Dem) -> None:
-        now = walltime.perf_counter()
-        if now - self.last < self.every:
-            return
-        self.last = now
-        print(f"{self.label}: t = {dem.time:8.2f} s, {dem.n} particles, "
-              f"step {dem.steps_done}, held {dem.held_mass() / 1e3:.1f} t, "
-              f"wall {now - self.start:.0f} s", file=self.stream, flush=True)
+        self.lines.update(dem.time, self._state(dem))
+
+    def close(self, dem: Dem) -> None:
+        """The final line, with the end time and the wall time it took."""
+        self.lines.update(dem.time, self._state(dem))
+        self.lines.close(self._state(dem))
+
+    @staticmethod
+    def _state(dem: Dem) -> str:
+        return (f"{dem.n} particles, step {dem.steps_done}, "
+                f"held {dem.held_mass() / 1e3:.1f} t")

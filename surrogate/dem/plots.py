@@ -14,14 +14,15 @@ PICTURES = {
 """File stem -> (snapshot key or None for |velocity|, colour-bar label, colour map)."""
 
 
-def pile_pictures(snapshot: dict, out_dir, title: str = "") -> list[Path]:
-    """Write ``pile_<stem>.png`` for each entry of ``PICTURES``; return the paths."""
-    import matplotlib
+def pile_pictures(snapshot: dict, out_dir, run: str | None = None) -> list[Path]:
+    """Write ``pile_<stem>.png`` for each entry of ``PICTURES``; return the paths.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    ``run`` names the run in the titles (``cosim.plotstyle.run_label``)."""
     from matplotlib.collections import EllipseCollection
 
+    from cosim import plotstyle
+
+    plt = plotstyle.pyplot()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     pos = snapshot["position"]
@@ -44,10 +45,8 @@ def pile_pictures(snapshot: dict, out_dir, title: str = "") -> list[Path]:
         ax.set_aspect("equal")
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
-        ax.set_title(f"{title} t = {float(snapshot['time']):.1f} s, "
-                     f"{pos.shape[0]} particles, coloured by {label}")
-        path = out_dir / f"pile_{stem}.png"
-        fig.savefig(path, dpi=110, bbox_inches="tight")
-        plt.close(fig)
-        paths.append(path)
+        ax.grid(False)
+        plotstyle.title(fig, f"DEM pile at t = {float(snapshot['time']):.1f} s: "
+                        f"{pos.shape[0]} particles coloured by {label}", run)
+        paths.append(plotstyle.save(fig, out_dir / f"pile_{stem}.png", bbox_inches="tight"))
     return paths

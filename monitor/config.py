@@ -1,0 +1,81 @@
+"""The monitor's configuration: the stockpile's capacity and the alarm limits.
+
+A TOML file (``minetwin monitor --config FILE``) overrides any of the
+defaults below; the page reads the result from ``/monitor/config``. The
+page raises an alarm while a limit is passed and clears it when the value
+is back inside (no dead band):
+
+```toml
+[stockpile]
+capacity_t = 2000.0      # storage capacity [t]: fill level = held mass / capacity
+[alarms]
+level_high_pct = 90.0    # LEVEL HIGH while the fill level is above this [% of capacity]
+level_low_pct = 10.0     # LEVEL LOW while the fill level is below this [% of capacity]
+grade_low_pct = 25.0     # GRADE LOW while the pile's grade is below this [%]
+grade_high_pct = 75.0    # GRADE HIGH while the pile's grade is above this [%]
+[trends]
+window_s = 0.0           # time range the trends open with [s]; 0: the whole run
+```
+
+The default capacity of 2,000 t is the paper's stockpile ("The stockpile
+holds up to 2,000 tons", section "Integration test"). Bad values raise ``ValidationError`` naming the
+key, e.g. ``alarms.level_high_pct``.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+
+from cosim.errors import ValidationError
+from cosim.tomlfile import read_toml
+
+DEFAULTS = {
+    "stockpile": {"capacity_t": 2000.0},
+    "alarms": {"level_high_pct": 90.0, "level_low_pct": 10.0,
+               "grade_low_pct": 25.0, "grade_high_pct": 75.0},
+    "trends": {"window_s": 0.0},
+}
+"""Default configuration (units in the key names: t, % and s)."""
+
+_RANGES = {
+    ("stockpile", "capacity_t"): (0.0, 1e7, True),
+    ("alarms", "level_high_pct"): (0.0, 100.0, False),
+    ("alarms", "level_low_pct"): (0.0, 100.0, False),
+    ("alarms", "grade_low_pct"): (0.0, 100.0, False),
+    ("alarms", "grade_high_pct"): (0.0, 100.0, False),
+    ("trends", "window_s"): (0.0, 1e7, False),
+}
+"""(low, high, low is exclusive) of every key."""
+
+
+def load_monitor_config(path=None) -> dict:
+    """The defaults overridden by the TOML file at ``path`` (None: defaults)."""
+    config = copy.deepcopy(DEFAULTS)
+    if path is None:
+        return config
+    document = read_toml(path, "config")
+    for section, values in document.items():
+        if section not in DEFAULTS or not isinstance(values, dict):
+            raise ValidationError(section, f"a table among {sorted(DEFAULTS)}",
+                                  f"got {section!r} in {path}")
+        for key, value in values.items():
+            field = f"{section}.{key}"
+            if key not in DEFAULTS[section]:
+                raise ValidationError(field, f"one of {sorted(DEFAULTS[section])}",
+                                      f"unknown key in {path}")
+            low, high, low_open = _RANGES[(section, key)]
+            allowed = f"a number {'>' if low_open else '>='} {low:g} and <= {high:g}"
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValidationError(field, allowed, f"got {value!r}")
+            if not (math.isfinite(value) and value <= high
+                    and (value > low if low_open else value >= low)):
+                raise ValidationError(field, allowed, f"got {value!r}")
+            config[section][key] = float(value)
+    alarms = config["alarms"]
+    for low_key, high_key in (("level_low_pct", "level_high_pct"),
+                              ("grade_low_pct", "grade_high_pct")):
+        if not alarms[low_key] < alarms[high_key]:
+            raise ValidationError(f"alarms.{low_key}", f"< alarms.{high_key} "
+                                  f"({alarms[high_key]:g})", f"got {alarms[low_key]:g}")
+    return config

@@ -1,0 +1,101 @@
+"""Progress lines (cosim.progress): labels, speed and ETA, plain lines in logs."""
+
+from __future__ import annotations
+
+import io
+
+import pytest
+
+from cosim import progress as progress_module
+from cosim.master import Component, Master
+from cosim.progress import Progress
+
+
+class Clock:
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+
+class Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    fake = Clock()
+    monkeypatch.setattr(progress_module.wallclock, "perf_counter", fake)
+    return fake
+
+
+def test_log_gets_plain_lines_with_label_speed_and_eta(clock):
+    log = io.StringIO()
+    lines = Progress("reference run", 1200.0, stream=log, log_every_s=10.0)
+    lines.update(0.5)
+    clock.now += 4.0
+    lines.update(400.0)           # within 10 s of the last line: not written
+    clock.now += 6.0
+    lines.update(600.0)
+    clock.now += 10.0
+    lines.close()
+    text = log.getvalue()
+    assert "\r" not in text
+    first, second, last = text.splitlines()
+    assert first.startswith("reference run: [") and "t = 0.5 / 1200 s (0 %)" in first
+    assert "real time" not in first and "ETA" not in first  # nothing measured yet
+    # speed and ETA from the first line on (start-up excluded): 599.5 s in 10 s
+    assert "t = 600.0 / 1200 s (50 %)" in second
+    assert "60x real time" in second and "10 s elapsed" in second and "ETA 10 s" in second
+    assert "30x real time, 20 s elapsed, ETA 20 s" in last
+
+
+def test_terminal_gets_frames_and_a_final_line_break(clock):
+    terminal = Terminal()
+    lines = Progress("simulate", 100.0, stream=terminal)
+    lines.update(10.0)
+    clock.now += 2.0
+    lines.update(50.0)
+    lines.note("a message")
+    text = terminal.getvalue()
+    assert text.count("\r") == 2
+    assert text.endswith("\nsimulate: a message\n")
+
+
+def test_unknown_total_has_no_bar_and_no_eta(clock):
+    log = io.StringIO()
+    lines = Progress("dem pile", None, stream=log, log_every_s=1.0)
+    lines.update(0.0, "0 particles")
+    clock.now += 3.0
+    lines.update(1.5, "12 particles")
+    first, second = log.getvalue().splitlines()
+    assert first == "dem pile: t = 0.0 s, 0 s elapsed, 0 particles"
+    assert second == "dem pile: t = 1.5 s, 0.5x real time, 3 s elapsed, 12 particles"
+
+
+class Idle(Component):
+    name = "idle"
+
+    def step(self, t, dt):
+        pass
+
+
+def test_master_reports_with_its_label_in_plain_lines(capsys):
+    master = Master(step=1.0, progress="unit run")
+    master.add(Idle())
+    master.run(5.0)
+    err = capsys.readouterr().err
+    assert "\r" not in err
+    lines = err.splitlines()
+    assert lines[0].startswith("unit run: [") and lines[-1].startswith("unit run: [")
+    assert "t = 5.0 / 5 s (100 %)" in lines[-1]
+
+
+def test_a_run_past_its_estimated_total_says_so(clock):
+    log = io.StringIO()
+    lines = Progress("dem pile", 12.5, stream=log)
+    clock.now += 2.0
+    lines.update(13.0, force=True)
+    assert "t = 13.0 s (estimated 12.5 s)" in log.getvalue() and "ETA" not in log.getvalue()
