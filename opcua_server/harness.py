@@ -72,7 +72,9 @@ class ManagedProcess:
         self.proc = subprocess.Popen(args, stdout=self.log, stderr=subprocess.STDOUT,
                                      env={**os.environ, **(env or {})})
 
-    def wait_for_file(self, path: Path, timeout: float = 30.0) -> str:
+    def wait_for_file(self, path: Path, timeout: float = 120.0) -> str:
+        """The file's text once the process wrote it; ``timeout`` [s] is generous:
+        on a loaded machine a server takes more than 30 s to start (seen)."""
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             if Path(path).exists() and Path(path).read_text():

@@ -57,7 +57,8 @@ class LedgerStore:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
-            self.db = sqlite3.connect(self.path, timeout=10.0, isolation_level=None)
+            # the default isolation level: ``with self.db`` is one transaction, one fsync
+            self.db = sqlite3.connect(self.path, timeout=10.0)
             self.db.execute("PRAGMA journal_mode=WAL")
             self.db.execute("PRAGMA synchronous=FULL")
             self.db.executescript(_TABLES)

@@ -127,6 +127,7 @@ class StockpileClient:
         # empty: the setpoint read in the cycle applies to the whole cycle
         self.setpoint_changes: list[tuple[float, float]] = []
         self._lag_warned_at = -math.inf
+        self._cycle_budget_s = None  # wall-time budget of the running cycle's stepping
         self.server_instance = None
 
     @property
@@ -165,12 +166,14 @@ class StockpileClient:
         """Step the asset to ``target_time`` applying inbound records in order;
         return this cycle's outflow report (or None).
 
-        ``budget_s`` [wall s]: stop stepping (short of ``target_time``) once
-        this much wall time is spent, so a client far behind catches up over
-        several cycles and keeps its session alive (the next cycle goes on).
+        ``budget_s`` [wall s] (default: the running cycle's, ``cycle_budget_s``
+        outside lockstep): stop stepping (short of ``target_time``) once this
+        much wall time is spent, so a client far behind catches up over several
+        cycles and keeps its session alive (the next cycle goes on).
         """
         asset = self.asset
         started = time.perf_counter()
+        budget_s = budget_s if budget_s is not None else self._cycle_budget_s
         deadline = started + budget_s if budget_s is not None else math.inf
         outflow: dict[int, list[float]] = {}
         changes = self.setpoint_changes
@@ -364,8 +367,12 @@ class StockpileClient:
             self.setpoint_changes = sorted(zip(map(float, changes[0] or []),
                                                map(float, changes[1] or [])),
                                            key=lambda change: change[0])  # stable: in order
-        self.advance_to(float(server_time),
-                        None if self.o.lockstep else self.o.cycle_budget_s)
+        # the budget as an attribute: subclasses override advance_to(target_time)
+        self._cycle_budget_s = None if self.o.lockstep else self.o.cycle_budget_s
+        try:
+            self.advance_to(float(server_time))
+        finally:
+            self._cycle_budget_s = None
         if self.state.outbox or self.state.last_applied != self.acked:
             self._checkpoint()  # only what will be sent or acknowledged needs to be durable
         await self._send()

@@ -92,16 +92,21 @@ def test_rom_stockpile_over_opcua_loses_nothing_and_discharges(rom_file, tmp_pat
     # start of the discharge (the setpoint node read 0), never more than the
     # setpoint allows since then (the credit rule, plus at most one particle),
     # and at the setpoint once it runs (inflow 250 kg/s > setpoint, so it does
-    # not run dry); reports are stamped with the server's time at the
-    # exchange cycle that carries them (about 0.3 s of jitter) and the ROM
-    # takes whole particles, hence 10 %
-    assert report["outflow_reports"] >= 10
+    # not run dry; the ROM takes whole particles, hence 10 %)
+    # (how many reports carry it depends on the wall-clock pacing: a stockpile
+    # lagging 18 s under load caught up in 2; the kilograms do not)
+    assert report["outflow_reports"] >= 1
     assert 0 < report["mass_out_kg"] <= (SETPOINT_KG_S * (report["duration_s"] - DISCHARGE_START_S)
                                          + PARTICLE_MASS_KG)
     log = json.loads((out / "ledger.json").read_text())["outflow_log"]
     assert log[0]["time_s"] >= DISCHARGE_START_S
-    discharged = sum(row["mass_kg"] for row in log[1:])
-    rate = discharged / (log[-1]["time_s"] - log[0]["time_s"])
+    # on the stockpile's own plant clock (the server stamps a report when the
+    # exchange cycle that carries it runs, later when the stockpile lags): the
+    # pile only fills before the start, and the feeder runs at the setpoint after
+    history = json.loads((out / "stockpile.summary.json").read_text())["history"]
+    before = [row["held_mass_kg"] for row in history if row["time_s"] <= DISCHARGE_START_S]
+    assert before == sorted(before)
+    rate = report["mass_out_kg"] / (report["duration_s"] - DISCHARGE_START_S)
     assert rate == pytest.approx(SETPOINT_KG_S, rel=0.1)
 
 
