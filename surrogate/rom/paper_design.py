@@ -241,11 +241,11 @@ def reduced_design() -> Design:
     seconds (for tests): a base pile, a drain, a fill and a run from the
     drained pile."""
     cfg = paper_config()
-    piles = (PileSpec("base_small", 500, seed=0, settle_time=3.0),)
+    piles = (PileSpec("base_small", 300, seed=0, settle_time=2.0),)
     rows = [
-        ("small_out1000_in1000", "pile:base_small", 1000.0, 1000.0, 8.0),
-        ("small_drain_out1500", "pile:base_small", 1500.0, 0.0, 7.0),
-        ("small_depleted_out500_in1500", "run:small_drain_out1500", 500.0, 1500.0, 7.0),
+        ("small_out1000_in1000", "pile:base_small", 1000.0, 1000.0, 7.0),
+        ("small_drain_out1500", "pile:base_small", 1500.0, 0.0, 6.0),
+        ("small_depleted_out500_in1500", "run:small_drain_out1500", 500.0, 1500.0, 6.0),
     ]
     return Design("reduced", cfg, paper_grid(cfg), piles, _runs(rows), checkpoint_interval=2.0)
 
@@ -412,6 +412,7 @@ class _RunState:
         self.feed = doe.LotFeed(run.first_tracking_id, run.seed)
         self.wall = self.cpu = self.particle_steps = 0.0
         self.resumed_at = []
+        self.start = {}  # particles, held and emitted mass [kg] of the start state
 
     def save(self, path: Path) -> None:
         arrays = {f"sample_{k}": np.array(v) for k, v in self.samples.items()}
@@ -425,7 +426,7 @@ class _RunState:
         meta = {"step": self.step, "taken": self.taken, "held": self.held,
                 "window": len(self.window), "feed": feed, "wall": self.wall, "cpu": self.cpu,
                 "particle_steps": self.particle_steps, "resumed_at": self.resumed_at,
-                "samples": len(self.samples["time"])}
+                "samples": len(self.samples["time"]), "start": self.start}
         with open(path, "wb") as handle:
             np.savez_compressed(handle, meta=np.array(json.dumps(meta)), **arrays)
 
@@ -449,6 +450,7 @@ class _RunState:
             state.feed.grade, state.feed.hardness = feed["grade"], feed["hardness"]
             state.wall, state.cpu = meta["wall"], meta["cpu"]
             state.particle_steps, state.resumed_at = meta["particle_steps"], meta["resumed_at"]
+            state.start = meta.get("start", {})
         return state
 
 
@@ -512,6 +514,9 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
         dem.discharged()  # flush: only this run's outflow is recorded
         state.window = [_bulk(dem)]
         state.held = [dem.held_mass()]
+        state.start = {"particles": dem.n, "held_mass_kg": dem.held_mass(),
+                       "emitted_mass_kg": dem.emitted_mass,
+                       "discharged_mass_kg": dem.discharged_mass}
     dem.set_discharge_rate(run.discharge_rate, outlet=0)
     steps = int(round(run.duration / doe.CONTROL_STEP))
     lag = max(int(round(doe.VELOCITY_WINDOW / doe.CONTROL_STEP)), 1)
@@ -559,6 +564,9 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
               "dt_over_tc": dem.dt / design.config.contact_time,
               "wall_s": state.wall, "cpu_s": state.cpu,
               "particle_steps": state.particle_steps, "resumed_at_s": state.resumed_at,
+              "particles_start": state.start.get("particles"),
+              "held_mass_start_kg": state.start.get("held_mass_kg"),
+              "inflow_mass_kg": _since_start(dem.emitted_mass, state.start, "emitted_mass_kg"),
               "particles_end": dem.n, "held_mass_end_kg": dem.held_mass(),
               "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     runs = work / "runs"
@@ -580,9 +588,9 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
     tmp = states / f"run_{key}.npz.tmp"
     dem.save_checkpoint(tmp)
     _atomic_replace(tmp, states / f"run_{key}.npz")
-    outflow = result["out_mass"].astype(np.float64).sum()
+    outflow = _since_start(dem.discharged_mass, state.start, "discharged_mass_kg")
     record.update(status="done", samples=int(result["time"].size),
-                  discharged_mass_kg=float(outflow),
+                  discharged_mass_kg=outflow,
                   mass_balance_error=dem.mass_balance_error(),
                   result_bytes=(runs / f"{key}.npz").stat().st_size)
     _write_json(runs / f"{key}.json", record)
@@ -591,6 +599,12 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
                    f"{record['result_bytes'] / 1e6:.2f} MB, wall {_duration(state.wall)}, "
                    f"{state.particle_steps:.3g} particle-steps")
     return record
+
+
+def _since_start(total: float, start: dict, key: str):
+    """``total`` minus its value at the run's start [kg] (None for a run
+    resumed from a checkpoint that did not record it)."""
+    return None if key not in start else float(total - start[key])
 
 
 def compact_result(state: _RunState) -> dict:
@@ -730,10 +744,15 @@ def run_design(design: Design, work, data=None, workers: int = 2, progress=_stde
 
     # a run is needed if its result is missing, or its end state is missing
     # and a run that is needed starts from it
+    def blocked(run) -> bool:  # the run or a run it starts from blew up
+        if run_keys[run.name] in failed:
+            return True
+        return run.start.startswith("run:") and blocked(design.run(run.start[4:]))
+
     needed = set()
     for run in reversed(design.runs):
         key = run_keys[run.name]
-        if key in failed:
+        if blocked(run):
             continue
         children = [r for r in design.runs if r.start == f"run:{run.name}" and r.name in needed]
         if key not in done or (children and _state_path(work, data, "run_" + key) is None):
