@@ -202,8 +202,8 @@ def test_export_is_what_train_reads_and_counts_as_done(reduced_run, tmp_path):
 
 def test_a_killed_run_resumes_from_its_checkpoint(reduced_run, tmp_path):
     """Kill the design (SIGKILL, as at the end of a session) right after the
-    first checkpoint of a run, restart it: the run completes from that
-    checkpoint, with the result of the uninterrupted run."""
+    first checkpoint of a run, export, restart from the export alone: the run
+    completes from that checkpoint, with the result of the uninterrupted run."""
     design, finished, _, _ = reduced_run
     work = tmp_path / "work"
     run = design.run("small_out1000_in1000")
@@ -225,11 +225,20 @@ def test_a_killed_run_resumes_from_its_checkpoint(reduced_run, tmp_path):
         process.wait()
         process.stderr.close()
     assert not (work / "runs" / f"{key}.npz").exists()
-    pd.run_design(design, work, workers=1, progress=None)
+    # what a session commits at its end: the start states and the checkpoint;
+    # the next session, without the work directory, continues from them
+    data = tmp_path / "data"
+    manifest = pd.export(design, work, data, with_partial=True)
+    assert manifest["runs_done"] == 0 and manifest["state_bytes"] > 0
+    assert (data / "states" / f"{pd.start_key(design, run.start)}.npz").is_file()
+    assert pd.latest_checkpoint(data / "partial" / key) is not None
+    work = tmp_path / "next_session"
+    pd.run_design(design, work, data=data, workers=1, progress=None)
+    assert not (work / "states" / f"{pd.start_key(design, run.start)}.npz").exists()
     record = _strict((work / "runs" / f"{key}.json").read_text())
     assert record["status"] == "done" and len(record["resumed_at_s"]) == 1
     assert 0 < record["resumed_at_s"][0] < run.duration
-    assert not partial.exists()  # the checkpoints go once the run is done
+    assert not (work / "partial" / key).exists()  # the checkpoints go once the run is done
     with np.load(work / "runs" / f"{key}.npz") as resumed, \
             np.load(finished / "runs" / f"{key}.npz") as whole:
         assert set(resumed.files) == set(whole.files)

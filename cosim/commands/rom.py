@@ -63,6 +63,9 @@ def register(subparsers) -> None:
                         help="particle-steps per second per worker for --plan's time estimate")
     design.add_argument("--export", action="store_true",
                         help="copy the finished runs of --work into --data; run nothing")
+    design.add_argument("--with-partial", action="store_true",
+                        help="with --export: also copy the latest checkpoint of each "
+                             "interrupted run (to resume it where --work is gone)")
     design.set_defaults(handler=run_design)
     parser.set_defaults(handler=lambda args: parser.print_help() or 2)
 
@@ -168,7 +171,7 @@ def run_design(args) -> int:
     if args.export:
         if data is None:
             raise ValidationError("--data", "a folder to export into")
-        manifest = paper_design.export(design, args.work, data)
+        manifest = paper_design.export(design, args.work, data, with_partial=args.with_partial)
         print(f"exported {manifest['runs_done']} of {manifest['runs_total']} runs "
               f"({manifest['bytes'] / 1e6:.1f} MB) to {data}", file=sys.stderr)
         return 0

@@ -415,7 +415,8 @@ class _RunState:
         self.start = {}  # particles, held and emitted mass [kg] of the start state
 
     def save(self, path: Path) -> None:
-        arrays = {f"sample_{k}": np.array(v) for k, v in self.samples.items()}
+        # float32 as in the result: the cast is the same whenever it happens
+        arrays = {f"sample_{k}": np.array(v, dtype=np.float32) for k, v in self.samples.items()}
         arrays.update({f"window{i}_{k}": np.asarray(s[k]) for i, s in enumerate(self.window)
                        for k in SNAPSHOT_KEYS})
         outflow = _join_outflow(self.outflow)
@@ -493,16 +494,29 @@ def latest_checkpoint(directory: Path):
     return None
 
 
+CHECKPOINT_WALL_S = 600.0
+"""A run also writes a checkpoint after this much wall time [s] since its
+last one (a slow, shared machine reaches ``Design.checkpoint_interval``
+simulated seconds only after a long while)."""
+
+
 def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress=None,
-            progress_every: float = 60.0) -> dict:
+            progress_every: float = 60.0, data: Path | None = None) -> dict:
     """Run ``run`` from the state in ``start_path`` (or resume it from its
-    latest checkpoint in ``work/partial/<key>``); write its compact result,
-    end state and record; return the record."""
+    latest checkpoint in ``work/partial/<key>``, else in the data folder's
+    ``partial/<key>``); write its compact result, end state and record;
+    return the record."""
     from surrogate.dem import Dem
 
     key = run_key(design, run)
     partial = work / "partial" / key
     latest = latest_checkpoint(partial)
+    committed = None if data is None else latest_checkpoint(Path(data) / "partial" / key)
+    if latest is None and committed is not None:
+        partial.mkdir(parents=True, exist_ok=True)
+        for path in committed:
+            shutil.copyfile(path, partial / path.name)
+        latest = latest_checkpoint(partial)
     if latest:
         dem = Dem.load_checkpoint(latest[0])
         state = _RunState.load(latest[1], run)
@@ -521,7 +535,7 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
     steps = int(round(run.duration / doe.CONTROL_STEP))
     lag = max(int(round(doe.VELOCITY_WINDOW / doe.CONTROL_STEP)), 1)
     every = max(int(round(design.checkpoint_interval / doe.CONTROL_STEP)), 1)
-    last_report = time.perf_counter()
+    last_report = last_checkpoint = time.perf_counter()
     reason = None
     while state.step < steps:
         tic, cpu0 = time.perf_counter(), time.process_time()
@@ -547,8 +561,10 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
         state.step += 1
         state.wall += time.perf_counter() - tic
         state.cpu += time.process_time() - cpu0
-        if state.step % every == 0 and state.step < steps:
+        due = time.perf_counter() - last_checkpoint >= CHECKPOINT_WALL_S
+        if (state.step % every == 0 or due) and state.step < steps:
             _checkpoint(partial, dem, state)
+            last_checkpoint = time.perf_counter()
         if progress and time.perf_counter() - last_report >= progress_every:
             last_report = time.perf_counter()
             rate = state.particle_steps / max(state.cpu, 1e-9)
@@ -711,8 +727,8 @@ def _pile_job(design: Design, pile: PileSpec, work: Path) -> dict:
     return record
 
 
-def _run_job(design: Design, run: RunSpec, work: Path, start_path: Path) -> dict:
-    return run_one(design, run, work, start_path, progress=_stderr)
+def _run_job(design: Design, run: RunSpec, work: Path, start_path: Path, data) -> dict:
+    return run_one(design, run, work, start_path, progress=_stderr, data=data)
 
 
 def _stderr(message: str) -> None:
@@ -803,7 +819,7 @@ def run_design(design: Design, work, data=None, workers: int = 2, progress=_stde
                 if job[0] == "pile":
                     args = (_pile_job, design, design.pile(job[1]), work)
                 else:
-                    args = (_run_job, design, design.run(job[1]), work, start_path)
+                    args = (_run_job, design, design.run(job[1]), work, start_path, data)
                 if pool is None:
                     running[job] = args[0](*args[1:])
                 else:
@@ -865,13 +881,17 @@ def write_manifest(design: Design, work: Path) -> dict:
     return manifest
 
 
-def export(design: Design, work, data) -> dict:
+def export(design: Design, work, data, with_partial: bool = False) -> dict:
     """Copy the compact results of ``work``'s finished runs into the data folder
     ``data`` (``train/<name>.npz``), with ``manifest.json`` (the design, every
     finished run's record, the base piles') and ``doe.json`` (config, grid and
     the ROM's container, from the first base pile's measured density and angle
     of repose: what ``minetwin rom train`` reads). Runs already in ``data``
-    and not in ``work`` are kept. Returns the data manifest."""
+    and not in ``work`` are kept. The start states of the runs not yet done
+    go to ``states/`` (DEM checkpoints, so a session without ``work`` starts
+    them without redoing their parents) and, with ``with_partial``, the latest
+    checkpoint of each interrupted run to ``partial/<key>/``. Returns the data
+    manifest."""
     work, data = Path(work), Path(data)
     (data / "train").mkdir(parents=True, exist_ok=True)
     keys = {run_key(design, r): r.name for r in design.runs}
@@ -898,6 +918,7 @@ def export(design: Design, work, data) -> dict:
                 "dem_cpu_hours": sum(r["cpu_s"] for r in ordered) / 3600.0,
                 "regenerate": f"minetwin rom design --design {design.name} --work DIR "
                               f"--data {data} --workers 2"}
+    manifest["state_bytes"] = _export_states(design, work, data, set(records), with_partial)
     _write_json(data / "manifest.json", manifest)
     if piles:
         base = piles[0]
@@ -906,3 +927,42 @@ def export(design: Design, work, data) -> dict:
         doe.write_meta(data, design.config, design.grid, container,
                        {"design": design.name, "scenarios": [r["spec"] for r in ordered]})
     return manifest
+
+
+def _export_states(design: Design, work: Path, data: Path, done: set,
+                   with_partial: bool) -> int:
+    """Copy the start states (and optionally the latest checkpoints) of the
+    runs not in ``done`` into ``data``; drop those no run needs any more;
+    return their bytes."""
+    pending = [r for r in design.runs if run_key(design, r) not in done]
+    wanted = {start_key(design, r.start) for r in pending}
+    states = data / "states"
+    states.mkdir(parents=True, exist_ok=True)
+    for key in wanted:
+        source = work / "states" / f"{key}.npz"
+        if source.is_file():
+            shutil.copyfile(source, states / f"{key}.npz.tmp")
+            _atomic_replace(states / f"{key}.npz.tmp", states / f"{key}.npz")
+    for path in states.glob("*.npz"):
+        if path.name[:-4] not in wanted:
+            path.unlink()
+    partial = data / "partial"
+    keep = set()
+    for run in pending if with_partial else []:
+        key = run_key(design, run)
+        latest = latest_checkpoint(work / "partial" / key)
+        if latest is None:
+            if latest_checkpoint(partial / key):
+                keep.add(key)
+            continue
+        target = partial / key
+        shutil.rmtree(target, ignore_errors=True)
+        target.mkdir(parents=True)
+        for path in latest:
+            shutil.copyfile(path, target / path.name)
+        keep.add(key)
+    for folder in partial.glob("*") if partial.is_dir() else []:
+        if folder.name not in keep and (with_partial or folder.name not in
+                                        {run_key(design, r) for r in pending}):
+            shutil.rmtree(folder, ignore_errors=True)
+    return sum(p.stat().st_size for p in list(states.glob("*.npz")) + list(partial.rglob("*.npz")))
