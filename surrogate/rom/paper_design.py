@@ -841,24 +841,54 @@ def run_design(design: Design, work, data=None, workers: int = 2, progress=_stde
             else:
                 from concurrent.futures import FIRST_COMPLETED, wait
 
-                wait(list(running.values()), return_when=FIRST_COMPLETED)
+                while not wait(list(running.values()), timeout=STATUS_EVERY_S,
+                               return_when=FIRST_COMPLETED)[0]:
+                    now = spent + sum(_progress_of(design, work, job) * cost[job[1]]
+                                      for job in running)
+                    _say(progress, _status(design, now, total, time.perf_counter() - started,
+                                           len(order) - len(pending) - len(running),
+                                           len(order)))
                 finished_jobs = {job: f.result() for job, f in running.items() if f.done()}
             for job, record in finished_jobs.items():
                 del running[job]
                 spent += cost[job[1]]
                 if job[0] == "run" and record.get("status") == "unstable":
                     failed.add(record["key"])
-                elapsed = time.perf_counter() - started
-                left = total - spent
-                eta = elapsed / spent * left if spent else float("nan")
-                _say(progress, f"design {design.name}: {job[0]} {job[1]} finished; "
-                               f"{len(order) - len(pending) - len(running)}/{len(order)} jobs "
-                               f"done, ETA {_duration(eta)} for {left:.3g} particle-steps")
+                _say(progress, f"{job[0]} {job[1]} finished; " + _status(
+                    design, spent, total, time.perf_counter() - started,
+                    len(order) - len(pending) - len(running), len(order)))
             write_manifest(design, work)
     finally:
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
     return write_manifest(design, work)
+
+
+STATUS_EVERY_S = 600.0
+"""Wall seconds between the design's status lines while runs are under way."""
+
+
+def _progress_of(design: Design, work: Path, job) -> float:
+    """Fraction [0, 1] of a running job done, from its latest checkpoint."""
+    if job[0] != "run":
+        return 0.0
+    run = design.run(job[1])
+    latest = latest_checkpoint(work / "partial" / run_key(design, run))
+    if latest is None:
+        return 0.0
+    with np.load(latest[1], allow_pickle=False) as data:
+        step = json.loads(str(data["meta"]))["step"]
+    return min(step * doe.CONTROL_STEP / run.duration, 1.0)
+
+
+def _status(design: Design, spent: float, total: float, elapsed: float, done: int,
+            jobs: int) -> str:
+    """One plain progress line: jobs done, particle-steps done and the ETA at
+    this session's pace."""
+    left = max(total - spent, 0.0)
+    eta = _duration(elapsed / spent * left) if spent > 0 else "unknown"
+    return (f"design {design.name}: {done}/{jobs} jobs done, {spent:.3g} of {total:.3g} "
+            f"particle-steps, ETA {eta}")
 
 
 def design_description(design: Design) -> dict:
