@@ -286,3 +286,26 @@ def test_cli_plan_and_bad_input():
     bad = subprocess.run(command[:5] + ["--design", "nope", "--work", "x", "--plan"], cwd=ROOT,
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "--design" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_a_missing_start_state_reruns_the_parent_of_an_unfinished_run(reduced_run, tmp_path):
+    """Only results of the parent are kept, not its end state: to run the child
+    the design runs the parent again (the same key, the same result)."""
+    import shutil
+
+    design, finished, _, _ = reduced_run
+    work = tmp_path / "work"
+    shutil.copytree(finished, work)
+    parent = pd.run_key(design, design.run("small_drain_out1500"))
+    child = pd.run_key(design, design.run("small_depleted_out500_in1500"))
+    (work / "states" / f"run_{parent}.npz").unlink()
+    for suffix in (".npz", ".json"):
+        (work / "runs" / f"{child}{suffix}").unlink()
+    messages = []
+    pd.run_design(design, work, workers=1, progress=messages.append)
+    assert "2 jobs to do" in messages[0]
+    for key in (parent, child):
+        with np.load(work / "runs" / f"{key}.npz") as again, \
+                np.load(finished / "runs" / f"{key}.npz") as first:
+            for name in first.files:
+                np.testing.assert_array_equal(again[name], first[name], err_msg=name)

@@ -775,14 +775,18 @@ def run_design(design: Design, work, data=None, workers: int = 2, progress=_stde
             return True
         return run.start.startswith("run:") and blocked(design.run(run.start[4:]))
 
-    needed = set()
-    for run in reversed(design.runs):
-        key = run_keys[run.name]
-        if blocked(run):
-            continue
-        children = [r for r in design.runs if r.start == f"run:{run.name}" and r.name in needed]
-        if key not in done or (children and _state_path(work, data, "run_" + key) is None):
-            needed.add(run.name)
+    needed, grown = set(), True
+    while grown:  # until no run is added: parents of needed runs whose end state is gone
+        grown = False
+        for run in design.runs:
+            key = run_keys[run.name]
+            if run.name in needed or blocked(run):
+                continue
+            children = [r for r in design.runs
+                        if r.start == f"run:{run.name}" and r.name in needed]
+            if key not in done or (children and _state_path(work, data, "run_" + key) is None):
+                needed.add(run.name)
+                grown = True
     piles_needed = {p.name for p in design.piles
                     if _state_path(work, data, pile_keys[p.name]) is None
                     and any(r.start == f"pile:{p.name}" and r.name in needed
@@ -850,12 +854,13 @@ def run_design(design: Design, work, data=None, workers: int = 2, progress=_stde
                     _say(progress, _status(design, now, total, time.perf_counter() - started,
                                            len(order) - len(pending) - len(running),
                                            len(order)))
-                finished_jobs = {job: f.result() for job, f in running.items() if f.done()}
+                finished_jobs = {job: _outcome(job, f, progress)
+                                 for job, f in running.items() if f.done()}
             for job, record in finished_jobs.items():
                 del running[job]
                 spent += cost[job[1]]
-                if job[0] == "run" and record.get("status") == "unstable":
-                    failed.add(record["key"])
+                if job[0] == "run" and record.get("status") != "done":
+                    failed.add(run_keys[job[1]])  # an error: retried by the next start
                 _say(progress, f"{job[0]} {job[1]} finished; " + _status(
                     design, spent, total, time.perf_counter() - started,
                     len(order) - len(pending) - len(running), len(order)))
@@ -864,6 +869,17 @@ def run_design(design: Design, work, data=None, workers: int = 2, progress=_stde
         if pool is not None:
             pool.shutdown(wait=True, cancel_futures=True)
     return write_manifest(design, work)
+
+
+def _outcome(job, future, progress) -> dict:
+    """A finished job's record; an exception (a bug, a killed worker) becomes a
+    record with status ``error`` so the other runs go on."""
+    try:
+        return future.result()
+    except Exception as exc:  # noqa: BLE001 - any failure of one run must not stop the rest
+        _say(progress, f"{job[0]} {job[1]}: ERROR {type(exc).__name__}: {exc}; the design "
+                       "goes on (the run is retried when the design is restarted)")
+        return {"status": "error", "error": f"{type(exc).__name__}: {exc}"}
 
 
 STATUS_EVERY_S = 600.0
