@@ -194,6 +194,10 @@ def test_export_is_what_train_reads_and_counts_as_done(reduced_run, tmp_path):
     assert samples["run"].max() == len(design.runs) - 1
     meta = doe.read_meta(data)
     assert meta["grid"] == design.grid.to_dict() and meta["container"]["areal_density"] > 0
+    from surrogate.rom.evaluate import train
+
+    model = train(data, data / "model.npz", n_mass_modes=2, n_velocity_modes=2, ridge=1.0)
+    assert model.n_samples == samples["time"].size and model.grid.shape == design.grid.shape
     # a fresh work directory with this data folder has nothing to do
     messages = []
     pd.run_design(design, tmp_path / "fresh", data=data, workers=1, progress=messages.append)
