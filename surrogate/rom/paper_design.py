@@ -96,7 +96,7 @@ import shutil
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -122,7 +122,6 @@ FILL_RATE = 2000.0
 DATA_DIR = Path(__file__).parent / "data" / "paper_design"
 """Committed compact results of the paper design."""
 
-OUT_FLOAT_KEYS = ("time", "mass", "grade", "hardness")
 SAMPLE_KEYS = ("time", "mass", "velocity", "grade", "hardness", "discharge_rate", "setpoint",
                "inflow_rate", "held_mass", "dispersion_fit")
 SNAPSHOT_KEYS = ("time", "id", "position", "mass", "grade", "hardness")
@@ -474,10 +473,6 @@ def _join_outflow(records: list) -> dict:
     return {k: np.concatenate([np.asarray(r[k]) for r in records]) for k in _OUTFLOW_KEYS}
 
 
-def _atomic_replace(tmp: Path, path: Path) -> None:
-    os.replace(tmp, path)
-
-
 def _checkpoint(directory: Path, dem, state: _RunState) -> None:
     """``ckpt_<step>.dem.npz`` then ``ckpt_<step>.run.npz`` (written last: a
     checkpoint counts only when both exist); older ones are removed after."""
@@ -486,7 +481,7 @@ def _checkpoint(directory: Path, dem, state: _RunState) -> None:
     for suffix, write in ((".dem.npz", dem.save_checkpoint), (".run.npz", state.save)):
         tmp = base.with_name(base.name + suffix + ".tmp")
         write(tmp)
-        _atomic_replace(tmp, base.with_name(base.name + suffix))
+        os.replace(tmp, base.with_name(base.name + suffix))
     for old in directory.glob("ckpt_*"):
         if not old.name.startswith(base.name):
             old.unlink(missing_ok=True)
@@ -608,12 +603,12 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
     tmp = runs / f"{key}.npz.tmp"
     with open(tmp, "wb") as handle:
         np.savez_compressed(handle, **result)
-    _atomic_replace(tmp, runs / f"{key}.npz")
+    os.replace(tmp, runs / f"{key}.npz")
     states = work / "states"
     states.mkdir(parents=True, exist_ok=True)
     tmp = states / f"run_{key}.npz.tmp"
     dem.save_checkpoint(tmp)
-    _atomic_replace(tmp, states / f"run_{key}.npz")
+    os.replace(tmp, states / f"run_{key}.npz")
     outflow = _since_start(dem.discharged_mass, state.start, "discharged_mass_kg")
     record.update(status="done", samples=int(result["time"].size),
                   discharged_mass_kg=outflow,
@@ -649,7 +644,7 @@ def compact_result(state: _RunState) -> dict:
 def _write_json(path: Path, payload) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(payload, indent=1, allow_nan=False, default=_jsonable))
-    _atomic_replace(tmp, path)
+    os.replace(tmp, path)
 
 
 def _jsonable(value):
@@ -729,7 +724,7 @@ def _pile_job(design: Design, pile: PileSpec, work: Path) -> dict:
     states.mkdir(parents=True, exist_ok=True)
     tmp = states / f"{key}.npz.tmp"
     dem.save_checkpoint(tmp)
-    _atomic_replace(tmp, states / f"{key}.npz")
+    os.replace(tmp, states / f"{key}.npz")
     record.update(key=key, git_commit=git_commit(), design_version=DESIGN_VERSION)
     _write_json(states / f"{key}.json", record)
     _stderr(f"pile {pile.name} ({key}): {record['particles']} disks, "
@@ -957,7 +952,7 @@ def export(design: Design, work, data, with_partial: bool = False) -> dict:
             continue
         name = keys[key]
         shutil.copyfile(work / "runs" / f"{key}.npz", data / "train" / f"{name}.npz.tmp")
-        _atomic_replace(data / "train" / f"{name}.npz.tmp", data / "train" / f"{name}.npz")
+        os.replace(data / "train" / f"{name}.npz.tmp", data / "train" / f"{name}.npz")
         records[key] = record
     for path in (data / "train").glob("*.npz"):  # results of runs no longer in the design
         if path.stem not in {r["name"] for r in records.values()}:
@@ -998,7 +993,7 @@ def _export_states(design: Design, work: Path, data: Path, done: set,
         source = work / "states" / f"{key}.npz"
         if source.is_file():
             shutil.copyfile(source, states / f"{key}.npz.tmp")
-            _atomic_replace(states / f"{key}.npz.tmp", states / f"{key}.npz")
+            os.replace(states / f"{key}.npz.tmp", states / f"{key}.npz")
     for path in states.glob("*.npz"):
         if path.name[:-4] not in wanted:
             path.unlink()
