@@ -176,6 +176,7 @@ def test_a_restarted_design_skips_finished_runs(reduced_run):
     assert {p: p.stat().st_mtime_ns for p in (work / "runs").glob("*.npz")} == stamps
     assert len(manifest["runs_finished"]) == len(design.runs)
     _strict((work / "manifest.json").read_text())
+    assert {row["state"] for row in pd.status(design, work)} == {"done"}
 
 
 def test_export_is_what_train_reads_and_counts_as_done(reduced_run, tmp_path):
@@ -229,6 +230,8 @@ def test_a_killed_run_resumes_from_its_checkpoint(reduced_run, tmp_path):
         process.wait()
         process.stderr.close()
     assert not (work / "runs" / f"{key}.npz").exists()
+    row = next(r for r in pd.status(design, work) if r["name"] == run.name)
+    assert row["state"] == "partial" and 0 < row["simulated_s"] < run.duration
     # what a session commits at its end: the start states and the checkpoint;
     # the next session, without the work directory, continues from them
     data = tmp_path / "data"

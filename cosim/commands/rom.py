@@ -61,6 +61,9 @@ def register(subparsers) -> None:
                         help="print the runs, their keys and planned particle-steps; run nothing")
     design.add_argument("--rate", type=float, default=None,
                         help="particle-steps per second per worker for --plan's time estimate")
+    design.add_argument("--status", action="store_true",
+                        help="print each run's state (done, partial: how far, pending); "
+                             "run nothing")
     design.add_argument("--export", action="store_true",
                         help="copy the finished runs of --work into --data; run nothing")
     design.add_argument("--with-partial", action="store_true",
@@ -167,6 +170,14 @@ def run_design(args) -> int:
                 raise ValidationError("--rate", "> 0 particle-steps/s", f"got {args.rate}")
             plan["planned_hours_on_workers"] = total / args.rate / args.workers / 3600.0
         print(json.dumps(plan, indent=1, allow_nan=False))
+        return 0
+    if args.status:
+        for row in paper_design.status(design, args.work, data):
+            detail = {"done": lambda r: f"{(r['result_bytes'] or 0) / 1e6:.2f} MB, wall "
+                                        f"{(r['wall_s'] or 0) / 60:.0f} min",
+                      "partial": lambda r: f"{r['simulated_s']:.0f}/{r['duration_s']:.0f} s"
+                      }.get(row["state"], lambda r: "")(row)
+            print(f"{row['name']:<28} {row['key']} {row['state']:<8} {detail}")
         return 0
     if args.export:
         if data is None:

@@ -877,6 +877,30 @@ def _outcome(job, future, progress) -> dict:
         return {"status": "error", "error": f"{type(exc).__name__}: {exc}"}
 
 
+def status(design: Design, work, data=None) -> list[dict]:
+    """Per run: ``done`` (in ``work`` or ``data``), ``unstable``, ``partial``
+    (simulated seconds reached by its latest checkpoint) or ``pending``, with
+    its planned particle-steps."""
+    work = Path(work)
+    finished = {**committed_keys(data), **_load_records(work)}
+    cost = estimate(design)
+    rows = []
+    for run in design.runs:
+        key = run_key(design, run)
+        record = finished.get(key)
+        row = {"name": run.name, "key": key, "planned_particle_steps": cost[run.name]}
+        if record is not None:
+            row.update(state=record["status"], wall_s=record.get("wall_s"),
+                       result_bytes=record.get("result_bytes"))
+        elif latest_checkpoint(work / "partial" / key) is not None:
+            row.update(state="partial", simulated_s=_progress_of(design, work, ("run", run.name))
+                       * run.duration, duration_s=run.duration)
+        else:
+            row.update(state="pending")
+        rows.append(row)
+    return rows
+
+
 STATUS_EVERY_S = 600.0
 """Wall seconds between the design's status lines while runs are under way."""
 
