@@ -892,8 +892,11 @@ def status(design: Design, work, data=None) -> list[dict]:
         if record is not None:
             row.update(state=record["status"], wall_s=record.get("wall_s"),
                        result_bytes=record.get("result_bytes"))
-        elif latest_checkpoint(work / "partial" / key) is not None:
-            row.update(state="partial", simulated_s=_progress_of(design, work, ("run", run.name))
+        elif any(latest_checkpoint(folder / "partial" / key) is not None for folder in
+                 [work] + ([] if data is None else [Path(data)])):
+            folder = work if latest_checkpoint(work / "partial" / key) else Path(data)
+            row.update(state="partial", simulated_s=_progress_of(design, folder,
+                                                                 ("run", run.name))
                        * run.duration, duration_s=run.duration)
         else:
             row.update(state="pending")
