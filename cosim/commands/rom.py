@@ -42,6 +42,36 @@ def register(subparsers) -> None:
                                "sandpile rule alone")
     _model_options(evaluate)
     evaluate.set_defaults(handler=run_evaluate)
+    design = sub.add_parser(
+        "design", help="run (or resume) a DEM design of experiments; stored by content",
+        description="Run the DEM design of experiments DESIGN into the work directory --work: "
+                    "base piles laid out and settled, then DEM runs under constant discharge "
+                    "and inflow, each stored by the hash of its inputs (compact fields on the "
+                    "ROM grid and outflow records, float32). A restarted design skips finished "
+                    "runs (in --work or in --data) and resumes interrupted ones from their "
+                    "latest checkpoint. --plan prints the planned cost; --export copies the "
+                    "finished runs into --data (train/*.npz, manifest.json, doe.json).")
+    design.add_argument("--design", default="paper", help="paper (default) or reduced")
+    design.add_argument("--work", required=True,
+                        help="work directory: checkpoints, states and results")
+    design.add_argument("--data", default=None,
+                        help="data folder of committed results: finished runs there are "
+                             "skipped; --export writes there (default for the paper design: "
+                             "the package's surrogate/rom/data/paper_design)")
+    design.add_argument("--workers", type=int, default=2, help="processes (2)")
+    design.add_argument("--plan", action="store_true",
+                        help="print the runs, their keys and planned particle-steps; run nothing")
+    design.add_argument("--rate", type=float, default=None,
+                        help="particle-steps per second per worker for --plan's time estimate")
+    design.add_argument("--status", action="store_true",
+                        help="print each run's state (done, partial: how far, pending); "
+                             "run nothing")
+    design.add_argument("--export", action="store_true",
+                        help="copy the finished runs of --work into --data; run nothing")
+    design.add_argument("--with-partial", action="store_true",
+                        help="with --export: also copy the latest checkpoint of each "
+                             "interrupted run (to resume it where --work is gone)")
+    design.set_defaults(handler=run_design)
     parser.set_defaults(handler=lambda args: parser.print_help() or 2)
 
 
@@ -116,4 +146,49 @@ def run_evaluate(args) -> int:
         failed = [name for name, ok in summary["targets"].items() if not ok]
         print(f"minetwin rom evaluate: targets not met: {', '.join(failed)}", file=sys.stderr)
         return 1
+    return 0
+
+
+def run_design(args) -> int:
+    import json
+    from pathlib import Path
+
+    from cosim.errors import ValidationError
+    from surrogate.rom import paper_design
+
+    design = paper_design.get_design(args.design)
+    if args.workers < 1:
+        raise ValidationError("--workers", ">= 1", f"got {args.workers}")
+    data = Path(args.data) if args.data else (paper_design.DATA_DIR if design.name == "paper"
+                                              else None)
+    if args.plan:
+        cost = paper_design.estimate(design)
+        plan = paper_design.design_description(design)
+        total = sum(cost.values())
+        plan["planned_particle_steps_total"] = total
+        if args.rate:
+            if not args.rate > 0:
+                raise ValidationError("--rate", "> 0 particle-steps/s", f"got {args.rate}")
+            plan["planned_hours_on_workers"] = total / args.rate / args.workers / 3600.0
+        print(json.dumps(plan, indent=1, allow_nan=False))
+        return 0
+    if args.status:
+        for row in paper_design.status(design, args.work, data):
+            detail = {"done": lambda r: f"{(r['result_bytes'] or 0) / 1e6:.2f} MB, wall "
+                                        f"{(r['wall_s'] or 0) / 60:.0f} min",
+                      "partial": lambda r: f"{r['simulated_s']:.0f}/{r['duration_s']:.0f} s"
+                      }.get(row["state"], lambda r: "")(row)
+            print(f"{row['name']:<28} {row['key']} {row['state']:<8} {detail}")
+        return 0
+    if args.export:
+        if data is None:
+            raise ValidationError("--data", "a folder to export into")
+        manifest = paper_design.export(design, args.work, data, with_partial=args.with_partial)
+        print(f"exported {manifest['runs_done']} of {manifest['runs_total']} runs "
+              f"({manifest['bytes'] / 1e6:.1f} MB) to {data}", file=sys.stderr)
+        return 0
+    manifest = paper_design.run_design(design, args.work, data, workers=args.workers)
+    done = sum(r["status"] == "done" for r in manifest["runs_finished"])
+    print(f"design {design.name}: {done} of {len(design.runs)} runs finished in {args.work}",
+          file=sys.stderr)
     return 0

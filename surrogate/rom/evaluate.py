@@ -184,26 +184,6 @@ def _emission_batches(emissions: dict, t0: float, steps: int):
     return [slice(bounds[k], bounds[k + 1]) for k in range(steps)]
 
 
-GUARD_CHECKS_PER_STEP = 4
-"""Instability checks (``doe.instability``) per control step of a held-out
-DEM run: a blown-up run (forced time step) stops within a quarter second
-instead of crawling on with exploding neighbour lists."""
-
-
-def _advance_guarded(dem, seconds: float) -> str | None:
-    """Advance ``dem`` by ``seconds`` in ``GUARD_CHECKS_PER_STEP`` chunks;
-    return why it blew up, or None. The step count is rounded as
-    ``Dem.advance`` rounds it, so a stable run takes exactly the steps of
-    ``dem.advance(seconds)`` (checked: bit-identical outflow and fields)."""
-    steps = int(np.ceil(seconds / dem.dt - 1e-9))
-    for chunk in np.diff(np.linspace(0, steps, GUARD_CHECKS_PER_STEP + 1).round()):
-        dem.step(int(chunk))
-        reason = doe.instability(dem)
-        if reason:
-            return reason
-    return None
-
-
 def _run_heldout_dem(heldout: Path, name: str, grid: Grid, perturbation: float,
                      dt_factor: float, seed: int, progress) -> None:
     """One DEM run of the held-out scenario into ``heldout/<name>.npz``. A run
@@ -233,7 +213,7 @@ def _run_heldout_dem(heldout: Path, name: str, grid: Grid, perturbation: float,
             dem.emit(emissions["mass"][rows], emissions["grade"][rows],
                      emissions["hardness"][rows], doe.FEED_F, emissions["tracking_id"][rows],
                      inlet=0, ids=emissions["id"][rows])
-        unstable = _advance_guarded(dem, doe.CONTROL_STEP)  # the guard's cost counts too
+        unstable = doe.advance_guarded(dem, doe.CONTROL_STEP)  # the guard's cost counts too
         wall += time.perf_counter() - tic
         if unstable:
             _say(progress, f"  {heldout.name}/{name}: unstable at t = {dem.time - t0:.2f} s "

@@ -1,0 +1,318 @@
+"""The paper-scale DEM design (surrogate.rom.paper_design) on its reduced design:
+content keys, resume (skip finished runs, continue a killed run from its
+checkpoint), the compact result's schema, the strict manifest and the export
+that ``minetwin rom train`` reads. Invariants only (mass, ids, shapes), never
+one DEM trajectory's values."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from surrogate.rom import doe
+from surrogate.rom import paper_design as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+LAG = int(round(doe.VELOCITY_WINDOW / doe.CONTROL_STEP))
+
+
+def _strict(text: str):
+    def refuse(name):
+        raise ValueError(f"non-strict JSON constant {name}")
+    return json.loads(text, parse_constant=refuse)
+
+
+@pytest.fixture(scope="module")
+def reduced_run(tmp_path_factory):
+    """The reduced design run once, in this process (one worker)."""
+    work = tmp_path_factory.mktemp("design")
+    messages = []
+    design = pd.reduced_design()
+    manifest = pd.run_design(design, work, workers=1, progress=messages.append)
+    return design, work, manifest, messages
+
+
+# ------------------------------------------------------------------ keys
+def test_same_inputs_give_the_same_key_and_any_changed_input_a_new_one():
+    design = pd.reduced_design()
+    run = design.runs[0]
+    key = pd.run_key(design, run)
+    assert key == pd.run_key(pd.reduced_design(), run)
+    assert key == pd.run_key(design, dataclasses.replace(run, name="renamed"))  # names are labels
+    changed = [dataclasses.replace(run, discharge_rate=run.discharge_rate + 1.0),
+               dataclasses.replace(run, inflow_rate=run.inflow_rate + 1.0),
+               dataclasses.replace(run, duration=run.duration + 1.0),
+               dataclasses.replace(run, seed=run.seed + 1),
+               dataclasses.replace(run, first_tracking_id=run.first_tracking_id + 1),
+               dataclasses.replace(run, inlet=1)]
+    keys = {pd.run_key(design, r) for r in changed}
+    assert len(keys) == len(changed) and key not in keys
+    other_config = dataclasses.replace(design, config=pd.paper_config(friction=0.7))
+    assert pd.run_key(other_config, run) != key
+    # a run's key follows its start state: change the pile, the runs on it change
+    pile = design.piles[0]
+    other_pile = dataclasses.replace(design, piles=(dataclasses.replace(pile, seed=9),))
+    assert pd.pile_key(other_pile, other_pile.piles[0]) != pd.pile_key(design, pile)
+    assert pd.run_key(other_pile, run) != key
+    child = design.run("small_depleted_out500_in1500")
+    parent = design.run("small_drain_out1500")
+    longer = dataclasses.replace(design, runs=tuple(
+        dataclasses.replace(r, duration=9.0) if r.name == parent.name else r
+        for r in design.runs))
+    assert pd.run_key(longer, child) != pd.run_key(design, child)
+    original = pd.DESIGN_VERSION
+    try:
+        pd.DESIGN_VERSION = "another"
+        assert pd.run_key(design, run) != key
+    finally:
+        pd.DESIGN_VERSION = original
+
+
+def test_the_paper_design_is_paper_scale():
+    design = pd.paper_design()
+    cfg = design.config
+    assert (cfg.diameter_min, cfg.diameter_max) == (0.2, 0.48)
+    assert 10.0 < float(cfg.sphere_mass(0.2)) < 13.0 and 150.0 < float(cfg.sphere_mass(0.48)) < 162.0
+    assert len(cfg.inlets) == 2 and min(y for _, y in cfg.inlets) >= 60.0
+    assert len(cfg.outlets) == 1
+    assert cfg.stable_dt == pytest.approx(pd.STEP_FRACTION * cfg.contact_time)
+    base = design.pile("base_1700t")
+    assert base.particles == 20_000
+    rates = [(r.discharge_rate, r.inflow_rate) for r in design.runs]
+    assert min(q for q, _ in rates) == 0.0 and max(q for q, _ in rates) == 2000.0
+    assert min(q for _, q in rates) == 0.0 and max(q for _, q in rates) == 2000.0
+    # piles built from the inlet: a fill of a partial pile, first in line
+    assert design.runs[0].start.startswith("pile:") and design.runs[0].inflow_rate == 2000.0
+    assert design.runs[0].discharge_rate == 0.0
+    # most mass of the design: about 2 kt at the end of the base pile's fill
+    mean = pd.mean_disk_mass(cfg)
+    fill = design.run("fill_base_in2000")
+    assert 1.9e6 < base.particles * mean + fill.inflow_rate * fill.duration < 2.1e6
+    keys = [pd.run_key(design, r) for r in design.runs]
+    assert len(set(keys)) == len(keys)
+    starts = {r.name for r in design.runs}
+    assert all(r.start[4:] in starts for r in design.runs if r.start.startswith("run:"))
+
+
+# ---------------------------------------------------------- run + result
+def test_every_run_finishes_with_the_compact_schema(reduced_run):
+    design, work, manifest, _ = reduced_run
+    assert {r["name"] for r in manifest["runs_finished"]} == {r.name for r in design.runs}
+    ny, nx = design.grid.shape
+    for run in design.runs:
+        key = pd.run_key(design, run)
+        record = _strict((work / "runs" / f"{key}.json").read_text())
+        assert record["status"] == "done" and record["key"] == key
+        samples = int(round(run.duration)) - LAG + 1
+        with np.load(work / "runs" / f"{key}.npz") as data:
+            result = {k: data[k] for k in data.files}
+        assert set(result) == set(pd.SAMPLE_KEYS) | {f"out_{k}" for k in pd._OUTFLOW_KEYS}
+        shapes = {"mass": (samples, ny, nx), "velocity": (samples, ny, nx, 2),
+                  "grade": (samples, ny, nx), "hardness": (samples, ny, nx),
+                  "dispersion_fit": (samples, 2)}
+        for name in pd.SAMPLE_KEYS:
+            assert result[name].dtype == np.float32, name
+            assert result[name].shape == shapes.get(name, (samples,)), name
+        for name in ("out_id", "out_tracking_id"):
+            assert result[name].dtype == np.uint64
+        for name in ("out_time", "out_mass", "out_grade", "out_hardness"):
+            assert result[name].dtype == np.float32
+        assert np.all(np.diff(result["time"]) > 0)
+        assert np.all(result["setpoint"] == run.discharge_rate)
+        assert np.all(result["inflow_rate"] == run.inflow_rate)
+        assert np.isfinite(result["mass"]).all() and np.isfinite(result["velocity"]).all()
+        assert record["samples"] == samples and record["result_bytes"] > 0
+
+
+def test_runs_conserve_mass_and_ids(reduced_run):
+    from surrogate.dem import Dem
+
+    design, work, _, _ = reduced_run
+    for run in design.runs:
+        key = pd.run_key(design, run)
+        record = _strict((work / "runs" / f"{key}.json").read_text())
+        # held at the start + what entered = held at the end + what the feeder took
+        assert record["inflow_mass_kg"] == pytest.approx(run.inflow_rate * run.duration,
+                                                         rel=1e-12)
+        balance = (record["held_mass_start_kg"] + record["inflow_mass_kg"]
+                   - record["held_mass_end_kg"] - record["discharged_mass_kg"])
+        assert abs(balance) <= 1e-9 * record["held_mass_start_kg"]
+        assert record["mass_balance_error"] < 1e-12
+        with np.load(work / "runs" / f"{key}.npz") as data:
+            out_id, out_tracking = data["out_id"], data["out_tracking_id"]
+            out_mass = data["out_mass"].astype(np.float64)
+        assert out_mass.sum() == pytest.approx(record["discharged_mass_kg"], rel=1e-6)
+        end = Dem.load_checkpoint(work / "states" / f"run_{key}.npz")
+        assert np.unique(out_id).size == out_id.size
+        assert np.unique(end.id).size == end.n and not np.isin(out_id, end.id).any()
+        start = Dem.load_checkpoint(pd._state_path(work, None, pd.start_key(design, run.start)))
+        # every disk of the start state is still there or left by the feeder, once;
+        # every other disk is new (an id above the start state's) and carries the run's lots
+        new_end, new_out = end.id >= start.next_id, out_id >= start.next_id
+        assert np.isin(end.id[~new_end], start.id).all()
+        assert np.isin(out_id[~new_out], start.id).all()
+        assert (~new_end).sum() + (~new_out).sum() == start.n
+        assert new_end.sum() + new_out.sum() == end.next_id - start.next_id
+        lots = np.concatenate([end.tracking_id[new_end], out_tracking[new_out]])
+        assert np.all((lots >= run.first_tracking_id) & (lots < run.first_tracking_id + 10_000))
+        assert (lots.size > 0) == (run.inflow_rate > 0)
+
+
+def test_a_restarted_design_skips_finished_runs(reduced_run):
+    design, work, _, _ = reduced_run
+    stamps = {p: p.stat().st_mtime_ns for p in (work / "runs").glob("*.npz")}
+    messages = []
+    manifest = pd.run_design(design, work, workers=1, progress=messages.append)
+    assert "0 jobs to do" in messages[0]
+    assert {p: p.stat().st_mtime_ns for p in (work / "runs").glob("*.npz")} == stamps
+    assert len(manifest["runs_finished"]) == len(design.runs)
+    _strict((work / "manifest.json").read_text())
+    assert {row["state"] for row in pd.status(design, work)} == {"done"}
+
+
+def test_export_is_what_train_reads_and_counts_as_done(reduced_run, tmp_path):
+    design, work, _, _ = reduced_run
+    data = tmp_path / "data"
+    manifest = pd.export(design, work, data)
+    text = (data / "manifest.json").read_text()
+    assert _strict(text) == json.loads(text)
+    assert manifest["runs_done"] == manifest["runs_total"] == len(design.runs)
+    assert {r["name"] for r in manifest["runs"]} == {r.name for r in design.runs}
+    for record in manifest["runs"]:
+        assert record["git_commit"] and record["particle_steps"] > 0 and record["wall_s"] > 0
+        assert record["seed"] == record["spec"]["seed"]
+    samples = doe.load_samples(data)
+    assert samples["mass"].shape[1:] == design.grid.shape
+    assert samples["run"].max() == len(design.runs) - 1
+    meta = doe.read_meta(data)
+    assert meta["grid"] == design.grid.to_dict() and meta["container"]["areal_density"] > 0
+    from surrogate.rom.evaluate import train
+
+    model = train(data, data / "model.npz", n_mass_modes=2, n_velocity_modes=2, ridge=1.0)
+    assert model.n_samples == samples["time"].size and model.grid.shape == design.grid.shape
+    # a fresh work directory with this data folder has nothing to do
+    messages = []
+    pd.run_design(design, tmp_path / "fresh", data=data, workers=1, progress=messages.append)
+    assert "0 jobs to do" in messages[0]
+
+
+def test_a_killed_run_resumes_from_its_checkpoint(reduced_run, tmp_path):
+    """Kill the design (SIGKILL, as at the end of a session) right after the
+    first checkpoint of a run, export, restart from the export alone: the run
+    completes from that checkpoint, with the result of the uninterrupted run."""
+    design, finished, _, _ = reduced_run
+    work = tmp_path / "work"
+    run = design.run("small_out1000_in1000")
+    key = pd.run_key(design, run)
+    partial = work / "partial" / key
+    command = [sys.executable, "-m", "cosim.cli", "rom", "design", "--design", "reduced",
+               "--work", str(work), "--workers", "1"]
+    process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while pd.latest_checkpoint(partial) is None:
+            assert process.poll() is None, process.stderr.read().decode()
+            assert time.monotonic() < deadline, "no checkpoint within 120 s"
+            time.sleep(0.01)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+        process.stderr.close()
+    assert not (work / "runs" / f"{key}.npz").exists()
+    row = next(r for r in pd.status(design, work) if r["name"] == run.name)
+    assert row["state"] == "partial" and 0 < row["simulated_s"] < run.duration
+    # what a session commits at its end: the start states and the checkpoint;
+    # the next session, without the work directory, continues from them
+    data = tmp_path / "data"
+    manifest = pd.export(design, work, data, with_partial=True)
+    assert manifest["runs_done"] == 0 and manifest["state_bytes"] > 0
+    assert (data / "states" / f"{pd.start_key(design, run.start)}.npz").is_file()
+    assert pd.latest_checkpoint(data / "partial" / key) is not None
+    work = tmp_path / "next_session"
+    pd.run_design(design, work, data=data, workers=1, progress=None)
+    assert not (work / "states" / f"{pd.start_key(design, run.start)}.npz").exists()
+    record = _strict((work / "runs" / f"{key}.json").read_text())
+    assert record["status"] == "done" and len(record["resumed_at_s"]) == 1
+    assert 0 < record["resumed_at_s"][0] < run.duration
+    assert not (work / "partial" / key).exists()  # the checkpoints go once the run is done
+    with np.load(work / "runs" / f"{key}.npz") as resumed, \
+            np.load(finished / "runs" / f"{key}.npz") as whole:
+        assert set(resumed.files) == set(whole.files)
+        for name in whole.files:  # the same computation: bit for bit
+            np.testing.assert_array_equal(resumed[name], whole[name], err_msg=name)
+
+
+def test_a_run_that_blows_up_is_recorded_and_the_design_goes_on(tmp_path):
+    """A start state whose (forced) step is far above the limit: its runs stop
+    at the guard, are recorded unstable, the run that starts from one of them
+    is skipped, and the design ends."""
+    from surrogate.dem import Dem
+
+    design = pd.reduced_design()
+    pile = design.piles[0]
+    dem = pd.layered_pile(design.config, pile.particles, pile.seed)
+    dem.set_dt(4.0 * design.config.contact_time, force=True)
+    states = tmp_path / "states"
+    states.mkdir()
+    dem.save_checkpoint(states / f"pile_{pd.pile_key(design, pile)}.npz")
+    assert Dem.load_checkpoint(states / f"pile_{pd.pile_key(design, pile)}.npz").dt > 1e-3
+    messages = []
+    manifest = pd.run_design(design, tmp_path, workers=1, progress=messages.append)
+    status = {r["name"]: r["status"] for r in manifest["runs_finished"]}
+    assert status == {"small_out1000_in1000": "unstable", "small_drain_out1500": "unstable"}
+    assert any("skipped" in m and "small_depleted_out500_in1500" in m for m in messages)
+    for record in manifest["runs_finished"]:
+        assert record["unstable_reason"]
+    _strict((tmp_path / "manifest.json").read_text())
+    # recorded failures are not retried
+    messages.clear()
+    pd.run_design(design, tmp_path, workers=1, progress=messages.append)
+    assert "0 jobs to do" in messages[0]
+
+
+def test_cli_plan_and_bad_input():
+    command = [sys.executable, "-m", "cosim.cli", "rom", "design", "--design", "reduced",
+               "--work", "/nonexistent-never-written", "--plan"]
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    plan = _strict(done.stdout)
+    assert [r["name"] for r in plan["runs"]] == [r.name for r in pd.reduced_design().runs]
+    assert plan["planned_particle_steps_total"] > 0
+    assert not Path("/nonexistent-never-written").exists()
+    bad = subprocess.run(command[:5] + ["--design", "nope", "--work", "x", "--plan"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--design" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_a_missing_start_state_reruns_the_parent_of_an_unfinished_run(reduced_run, tmp_path):
+    """Only results of the parent are kept, not its end state: to run the child
+    the design runs the parent again (the same key, the same result)."""
+    import shutil
+
+    design, finished, _, _ = reduced_run
+    work = tmp_path / "work"
+    shutil.copytree(finished, work)
+    parent = pd.run_key(design, design.run("small_drain_out1500"))
+    child = pd.run_key(design, design.run("small_depleted_out500_in1500"))
+    (work / "states" / f"run_{parent}.npz").unlink()
+    for suffix in (".npz", ".json"):
+        (work / "runs" / f"{child}{suffix}").unlink()
+    messages = []
+    pd.run_design(design, work, workers=1, progress=messages.append)
+    assert "2 jobs to do" in messages[0]
+    for key in (parent, child):
+        with np.load(work / "runs" / f"{key}.npz") as again, \
+                np.load(finished / "runs" / f"{key}.npz") as first:
+            for name in first.files:
+                np.testing.assert_array_equal(again[name], first[name], err_msg=name)
