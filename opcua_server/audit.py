@@ -2,8 +2,8 @@
 
 A tracking id that entered the stockpile with mass m_in must be found as
 m_out (reported onto CV301, server ledger) + m_held (still in the pile,
-stockpile summary) = m_in to within ``rel_tol`` (DESIGN.md section 8: mass
-balance relative error < 1e-9). Less is *lost*; more, or mass of an id that
+stockpile summary) = m_in to within ``rel_tol`` (default 1e-9, the
+mass-balance bound of every test). Less is *lost*; more, or mass of an id that
 never entered, is *duplicated*.
 """
 

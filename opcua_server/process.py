@@ -5,7 +5,7 @@ assets of the incoming and outgoing conveyors, discretized in bins moving
 with the controlled conveyor belt speed. Each bin on the incoming conveyor
 contain material with a specific mass, ore grade and a tracking-id. That
 information is exchanged with the stockpile asset when a bin reach the
-discharge point." DESIGN.md section 6.
+discharge point."
 
 Model
 -----

@@ -2,7 +2,7 @@
 
 Source: paper section "Integration test" (exchange of bins at the discharge
 point, the discharge-rate control signal, and macro-tracking messages for the
-outgoing conveyor); DESIGN.md section 6 ("the exchange loses nothing").
+outgoing conveyor). The exchange loses nothing.
 
 One *exchange cycle* (every ``cycle_s`` wall seconds, or one
 ``Plant.AdvanceTime(period_s)`` call in lockstep):
