@@ -44,7 +44,6 @@ A value outside its range, a missing required key or an unknown key is a
 from __future__ import annotations
 
 import copy
-import importlib
 import inspect
 import time as wallclock
 from dataclasses import dataclass, field
@@ -380,12 +379,10 @@ def _check_fmu_parameters(fmu: str, parameters: dict, path: str) -> None:
         return
     from fmpy import read_model_description
 
+    file = _fmu_file(fmu, path)
     try:
-        description = read_model_description(_fmu_file(fmu, path))
-    except ValidationError:
-        raise
-    except Exception as exc:  # a missing or broken FMU is reported when it is loaded
-        del exc
+        description = read_model_description(file)
+    except Exception:  # noqa: BLE001 - a broken FMU is reported, in full, when it is loaded
         return
     declared = {v.name: v for v in description.modelVariables
                 if v.causality in ("parameter", "input") or v.variability == "tunable"}
@@ -393,9 +390,9 @@ def _check_fmu_parameters(fmu: str, parameters: dict, path: str) -> None:
         name = f"{path}.parameters.{key}"
         variable = declared.get(key)
         if variable is None:
-            raise ValidationError(name, f"a parameter of {Path(_fmu_file(fmu, path)).name}: "
+            raise ValidationError(name, f"a parameter of {Path(file).name}: "
                                   f"one of {sorted(declared)}", "unknown parameter")
-        unit = f" {variable.unit}" if getattr(variable, "unit", None) else ""
+        unit = f" {variable.unit}" if variable.unit else ""
         low, high = (None if v is None else float(v) for v in (variable.min, variable.max))
         if (low is not None and value < low) or (high is not None and value > high):
             bounds = " and ".join(part for part in (
@@ -453,12 +450,11 @@ def _fmu_file(name: str, path: str) -> str:
 
 
 def _storage(cfg: dict, rng_seed) -> object:
-    from cosim.storage import STORAGE_MODELS, make_storage
+    from cosim.storage import make_storage, storage_class
 
     name = cfg["model"]
-    module, cls = STORAGE_MODELS[name].split(":")
     options = dict(cfg["options"])
-    accepts = inspect.signature(getattr(importlib.import_module(module), cls)).parameters
+    accepts = inspect.signature(storage_class(name)).parameters
     if "rng" in accepts and "rng" not in options:
         options["rng"] = np.random.default_rng(rng_seed)
     return make_storage(name, **options)
