@@ -115,6 +115,7 @@ class ServerProcess(ManagedProcess):
                  until: float | None = None):
         workdir = Path(workdir)
         self.state = state
+        self.until, self.speed, self.lockstep = until, speed, lockstep
         self.port = port or free_port()
         self.ledger = workdir / "ledger.json"
         ready = workdir / "server.ready"
@@ -177,7 +178,10 @@ def drain_and_stop(server: ServerProcess, stockpile: StockpileProcess | None,
                    timeout: float = 30.0) -> tuple[dict, dict | None]:
     """Freeze the server's clock, let the stockpile catch up, stop both.
 
-    Returns ``(ledger, summary)``. The stockpile has caught up when its time
+    A server started with ``until`` is not signalled: its clock freezes at
+    ``until`` by itself, and is waited for (``timeout`` plus the wall time the
+    rest of the run takes at the server's speed). Returns ``(ledger, summary)``.
+    The stockpile has caught up when its time
     (REST ``/totals``) reached the frozen clock and the server then saw two
     more of its heartbeats (a whole exchange cycle after it: reports sent,
     records acknowledged). ``timeout`` [s of wall time] bounds each wait
@@ -187,8 +191,11 @@ def drain_and_stop(server: ServerProcess, stockpile: StockpileProcess | None,
     import json
     import urllib.request
 
-    server.proc.send_signal(signal.SIGUSR1)
     end = time.monotonic() + timeout
+    if server.until is None:
+        server.proc.send_signal(signal.SIGUSR1)
+    elif not server.lockstep:
+        end += server.until / server.speed
     ledger = {}
     while time.monotonic() < end:
         time.sleep(0.3)
