@@ -25,7 +25,7 @@ from pathlib import Path
 
 from cosim import jsonio
 from opcua_server.audit import audit
-from opcua_server.harness import ServerProcess, StockpileProcess, drain_and_stop, prepare_state
+from minetwin.harness import ServerProcess, StockpileProcess, drain_and_stop, prepare_state
 
 MAX_LAG_P99_S = 2.0
 """Largest p99 lag [s of plant time] of the stockpile behind the plant that passes."""

@@ -239,7 +239,7 @@ def validate(raw: dict) -> dict:
 
     if not isinstance(raw, dict):
         raise ValidationError("scenario", "a table of tables", f"got {type(raw).__name__}")
-    # [reference] names the signals of a reference result (cosim.testing.reference);
+    # [reference] names the signals of a reference result (minetwin.testing.reference);
     # the simulator ignores it
     _no_unknown(raw, ("simulation", "sources", "trucks", "crusher", "conveyors", "stockpile",
                       "mill", "reference"), "")

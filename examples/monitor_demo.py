@@ -1,7 +1,7 @@
 """Run a stockpile and the monitor, and save what the control room sees.
 
 Starts two real processes on 127.0.0.1: a stockpile serving its REST
-interface (``python -m monitor.demo_stockpile``, or any stockpile URL given
+interface (``python -m minetwin.demo_stockpile``, or any stockpile URL given
 with ``--stockpile``) and the monitor (``minetwin monitor``); lets the
 simulation run, then opens the page in Debian's chromium (Playwright) and
 saves ``OUT/monitor.png`` (coloured by grade), ``OUT/monitor_origin.png``
@@ -74,7 +74,7 @@ def main(argv=None) -> int:
         url = args.stockpile
         if url is None:
             scenario = ["--scenario", str(args.scenario)] if args.scenario else []
-            stockpile, url = start([sys.executable, "-m", "monitor.demo_stockpile", "--port", "0",
+            stockpile, url = start([sys.executable, "-m", "minetwin.demo_stockpile", "--port", "0",
                                     "--speed", str(args.speed), *scenario],
                                    r"http://127\.0\.0\.1:\d+", "stdout")
             processes.append(stockpile)

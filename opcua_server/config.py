@@ -14,7 +14,6 @@ from cosim.errors import ValidationError, check_finite_range
 from cosim.tomlfile import read_toml
 
 DEFAULT_CONFIG = Path(__file__).with_name("config") / "default.toml"
-DEFAULT_NODEMAP = Path(__file__).with_name("config") / "nodemap.toml"
 
 
 def _merge(base: dict, override: dict) -> dict:
@@ -76,28 +75,3 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
         raise ValidationError("feed.first_tracking_id", "in [0, 2**63)", f"got {first}")
     return config
 
-
-def load_nodemap(path: str | Path | None = None) -> dict[str, str]:
-    """Logical name -> node id string (``nsu=URI;s=ID`` or ``ns=N;s=ID``).
-
-    The client addresses the plant only through this map, so the same client
-    can be pointed at a real plant server with the same layout.
-    """
-    data = _read(Path(path) if path else DEFAULT_NODEMAP, "node_map")
-    nodes = data.get("nodes", {})
-    missing = [name for name in REQUIRED_NODES if name not in nodes]
-    if missing:
-        raise ValidationError("node_map", f"an entry for each of {REQUIRED_NODES}",
-                              f"missing {missing}")
-    return {name: str(value) for name, value in nodes.items()}
-
-
-REQUIRED_NODES = (
-    "simulation_time", "discharge_rate_setpoint", "held_mass", "average_grade", "heartbeat",
-    "surrogate_time", "sp201", "inbound_last_sequence", "inbound_acknowledged_sequence",
-    "pending_sequence", "pending_tracking_ids", "pending_masses", "pending_grades",
-    "pending_hardness", "pending_sources", "pending_times", "acknowledge", "outbound",
-    "report_outflow", "outbound_last_sequence", "plant", "advance_time",
-    "bin_discharged_event_type",
-)
-"""Logical names the stockpile client needs in the node map."""

@@ -34,8 +34,6 @@ from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User,
 from cosim.errors import ValidationError
 
 ROLES = ("operator", "surrogate", "viewer")
-APPLICATION_URI_SERVER = "urn:minetwin:mock800xa:server"
-APPLICATION_URI_CLIENT = "urn:minetwin:stockpile:client"
 
 _SCRYPT = {"n": 2**14, "r": 8, "p": 1, "dklen": 32}
 

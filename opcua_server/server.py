@@ -51,8 +51,9 @@ from opcua_server import sessions
 from opcua_server.ledger_store import LedgerStore
 from opcua_server.process import MAX_REPORT_ROWS, ExchangeRefused, PlantProcess
 from opcua_server.sessions import SessionGuard
-from opcua_server.security import (APPLICATION_URI_SERVER, PlantPermissions, PlantUserManager,
-                                   ensure_certificate, ensure_users, load_users, pki_paths)
+from opcua_protocol import APPLICATION_URI_SERVER
+from opcua_server.security import (PlantPermissions, PlantUserManager, ensure_certificate,
+                                   ensure_users, load_users, pki_paths)
 
 log = logging.getLogger("opcua_server")
 

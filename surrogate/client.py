@@ -231,7 +231,7 @@ class StockpileClient:
         from asyncua import Client, ua
         from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
-        from opcua_server.security import APPLICATION_URI_CLIENT
+        from opcua_protocol import APPLICATION_URI_CLIENT
 
         client = Client(self.o.server_url, timeout=self.o.timeout_s)
         client.application_uri = APPLICATION_URI_CLIENT
@@ -250,7 +250,7 @@ class StockpileClient:
     async def _resolve(self, client) -> None:
         from asyncua import ua
 
-        from opcua_server.config import load_nodemap
+        from opcua_protocol import load_nodemap
 
         self.nodes = {}
         namespaces = await client.get_namespace_array()

@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 def reproduce(name: str, out: Path) -> tuple[dict, subprocess.CompletedProcess]:
-    done = subprocess.run([sys.executable, "-m", "cosim.cli", "reproduce", name, "--quick",
+    done = subprocess.run([sys.executable, "-m", "minetwin.cli", "reproduce", name, "--quick",
                            "--quiet", "--out", str(out)], capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -80,7 +80,7 @@ def test_reproduce_feed_prediction(tmp_path):
 def test_reproduce_refuses_a_file_as_output_folder(tmp_path):
     target = tmp_path / "a_file"
     target.write_text("keep me")
-    done = subprocess.run([sys.executable, "-m", "cosim.cli", "reproduce", "grindability",
+    done = subprocess.run([sys.executable, "-m", "minetwin.cli", "reproduce", "grindability",
                            "--quick", "--quiet", "--out", str(target)], capture_output=True,
                           text=True, timeout=120)
     assert done.returncode == 2

@@ -1,6 +1,6 @@
 """Every subcommand refuses bad input with exit code 2 and a message naming the argument.
 
-Run in-process through ``cosim.cli.main`` (one interpreter for all cases): an
+Run in-process through ``minetwin.cli.main`` (one interpreter for all cases): an
 exception that escapes is a traceback a user would see, and fails the case.
 """
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from cosim.cli import main
+from minetwin.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = str(ROOT / "examples" / "step_response.toml")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cosim import sizes
-from cosim.cli import main
+from minetwin.cli import main
 from cosim.errors import ValidationError
 from cosim.particles import ParticleStore
 from cosim.storage import make_storage

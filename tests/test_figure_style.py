@@ -114,8 +114,8 @@ def test_overview_does_not_exaggerate_a_flat_hardness(figures, tmp_path):
 
 
 def test_reference_overlay(figures, tmp_path):
-    from cosim.testing.bands import Tolerance, compare_signal
-    from cosim.testing.reference import plot_comparison
+    from minetwin.testing.bands import Tolerance, compare_signal
+    from minetwin.testing.reference import plot_comparison
 
     t = np.arange(0.0, 100.0, 1.0)
     comparison = compare_signal("mill_fmu.power", t, 3e5 * (1 + 0.05 * (t > 50)), t,
@@ -129,7 +129,7 @@ def test_reference_overlay(figures, tmp_path):
 
 
 def test_integration_figures_show_every_source(figures, tmp_path):
-    from cosim.commands.integration import _plots
+    from minetwin.commands.integration import _plots
 
     rows = [{"time_s": float(k), "held_mass_kg": 1e3 * k, "grade": 0.2} for k in range(10)]
     log = [{"time_s": float(k), "by_source": {"0": 500.0}} for k in range(5, 10)]

@@ -131,7 +131,7 @@ def test_broken_archive_is_a_clear_error_naming_the_file(case, fmi, tmp_path,
 @pytest.mark.parametrize("fmi", [3, 2])
 @pytest.mark.parametrize("case", sorted(BROKEN))
 def test_cli_validate_exits_2_with_one_line(case, fmi, tmp_path, capsys, no_leftover_folders):
-    from cosim.cli import main
+    from minetwin.cli import main
 
     path = BROKEN[case][0](tmp_path, fmi)
     assert main(["fmus", "validate", str(path)]) == 2

@@ -171,7 +171,7 @@ def test_fmu_state_get_set_restores_outputs():
 
 
 def test_cli_build_and_validate(capsys):
-    from cosim.cli import main
+    from minetwin.cli import main
 
     assert main(["fmus", "build", "--model", "crusher"]) == 0
     assert "up to date" in capsys.readouterr().err

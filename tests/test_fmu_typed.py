@@ -289,7 +289,7 @@ def test_event_inside_a_step_as_fmpy_handles_it(fmi, rate):
 def test_cli_info_lists_every_variable(fmi, capsys):
     import json
 
-    from cosim.cli import main
+    from minetwin.cli import main
     from cosim.fmu import fmu_path
 
     path = typed_fmu_file("all_types", fmi)

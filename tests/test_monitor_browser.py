@@ -1,6 +1,6 @@
 """The monitor in a real browser (Debian chromium driven by Playwright).
 
-Real processes on 127.0.0.1: a stockpile (``python -m monitor.demo_stockpile``:
+Real processes on 127.0.0.1: a stockpile (``python -m minetwin.demo_stockpile``:
 the stockpile asset with its REST interface) and the monitor
 (``minetwin monitor``). The page must show the REST values, switch the
 colouring, follow the simulation, say "unreachable" when the stockpile
@@ -82,7 +82,7 @@ def _stop(proc) -> None:
 
 
 def _start_stockpile(port=0):
-    return _start([sys.executable, "-m", "monitor.demo_stockpile", "--port", str(port),
+    return _start([sys.executable, "-m", "minetwin.demo_stockpile", "--port", str(port),
                    "--speed", "4", "--seed", "1"], r"http://127\.0\.0\.1:(\d+)")
 
 
@@ -249,7 +249,7 @@ def test_monitor_page_against_the_mine_simulator(tmp_path):
     ``minetwin simulate`` runs), served by RestComponent in real time x 25."""
     _ensure_chromium()
     sync_api = pytest.importorskip("playwright.sync_api")
-    stockpile, match = _start([sys.executable, "-m", "monitor.demo_stockpile", "--port", "0",
+    stockpile, match = _start([sys.executable, "-m", "minetwin.demo_stockpile", "--port", "0",
                                "--speed", "25", "--scenario", str(STEP_RESPONSE)],
                               r"http://127\.0\.0\.1:(\d+)", timeout=60)
     monitor = None

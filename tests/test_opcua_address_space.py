@@ -1,7 +1,7 @@
 """The address space as an integrator's generic client sees it.
 
 ``opcua_server/ADDRESS_SPACE.md`` is written by ``python -m
-opcua_server.address_space`` from a browse of a running server; this test
+minetwin.address_space`` from a browse of a running server; this test
 browses a running server the same way and fails if the file differs (so the
 file cannot drift from the server). It also reads what a generic client
 shows: timestamps on live values, units and ranges (AnalogItemType with
@@ -16,8 +16,8 @@ from datetime import datetime, timedelta, timezone
 import pytest
 from asyncua import ua
 
-from opcua_server.address_space import DEFAULT_OUT, browse, render
-from opcua_server.harness import ServerProcess, connect, prepare_state
+from minetwin.address_space import DEFAULT_OUT, browse, render
+from minetwin.harness import ServerProcess, connect, prepare_state
 
 NS = "urn:minetwin:mock800xa"
 
@@ -49,7 +49,7 @@ def _run(plant, role, body):
 def test_address_space_md_is_what_the_running_server_shows(plant):
     text = _run(plant, "viewer", lambda client, node: browse(client))
     assert render(text) == DEFAULT_OUT.read_text(), (
-        "opcua_server/ADDRESS_SPACE.md is out of date: run python -m opcua_server.address_space")
+        "opcua_server/ADDRESS_SPACE.md is out of date: run python -m minetwin.address_space")
 
 
 def test_units_ranges_and_array_dimensions_are_advertised(plant):

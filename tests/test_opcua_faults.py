@@ -13,7 +13,7 @@ import time
 import pytest
 
 from opcua_server.audit import audit
-from opcua_server.harness import (ServerProcess, StockpileProcess, drain_and_stop, free_port,
+from minetwin.harness import (ServerProcess, StockpileProcess, drain_and_stop, free_port,
                                   prepare_state)
 
 SPEED = 10.0

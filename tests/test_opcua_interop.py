@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 from asyncua import ua
 
-from opcua_server.harness import ServerProcess, connect, prepare_state
+from minetwin.harness import ServerProcess, connect, prepare_state
 from opcua_server.process import MAX_REPORT_ROWS
-from opcua_server.security import APPLICATION_URI_CLIENT
+from opcua_protocol import APPLICATION_URI_CLIENT
 
 NODE_OPCUA_VERSION = "2.186.4"
 ROOT = Path(__file__).resolve().parents[1]

@@ -21,7 +21,7 @@ import pytest
 from asyncua import ua
 
 from opcua_server.audit import audit
-from opcua_server.harness import ServerProcess, StockpileProcess, connect, drain_and_stop, \
+from minetwin.harness import ServerProcess, StockpileProcess, connect, drain_and_stop, \
     prepare_state
 from surrogate.client import ClientOptions, StockpileClient
 

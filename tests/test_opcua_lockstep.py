@@ -11,7 +11,7 @@ import threading
 import pytest
 
 from opcua_server.audit import audit
-from opcua_server.harness import ServerProcess, StockpileProcess, prepare_state
+from minetwin.harness import ServerProcess, StockpileProcess, prepare_state
 
 
 def _run(workdir, state, results, key):

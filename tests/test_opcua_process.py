@@ -8,7 +8,8 @@ import pytest
 
 from cosim.errors import ValidationError
 from opcua_server.audit import audit
-from opcua_server.config import load_config, load_nodemap
+from opcua_protocol import load_nodemap
+from opcua_server.config import load_config
 from opcua_server.process import ExchangeRefused, PlantProcess
 from surrogate.stockpile import StockpileAsset
 

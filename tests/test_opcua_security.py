@@ -16,10 +16,10 @@ import time
 import pytest
 from asyncua import ua
 
-from opcua_server.harness import ServerProcess, connect, prepare_state
+from minetwin.harness import ServerProcess, connect, prepare_state
 from opcua_server.process import MAX_REPORT_ROWS
-from opcua_server.security import (APPLICATION_URI_CLIENT, ensure_certificate, pki_paths,
-                                   trust_certificate)
+from opcua_protocol import APPLICATION_URI_CLIENT
+from opcua_server.security import ensure_certificate, pki_paths, trust_certificate
 
 NS = "urn:minetwin:mock800xa"
 S = ua.StatusCodes

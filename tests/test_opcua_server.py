@@ -12,8 +12,9 @@ import pytest
 from asyncua import ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
-from opcua_server.harness import ServerProcess, connect, prepare_state
-from opcua_server.security import APPLICATION_URI_CLIENT, ensure_certificate, pki_paths
+from minetwin.harness import ServerProcess, connect, prepare_state
+from opcua_protocol import APPLICATION_URI_CLIENT
+from opcua_server.security import ensure_certificate, pki_paths
 
 NS = "urn:minetwin:mock800xa"
 

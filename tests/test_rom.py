@@ -169,7 +169,7 @@ def test_tracking_error_bounds():
 def test_cli_trains_from_a_doe_directory(tmp_path, capsys):
     import json
 
-    from cosim.cli import main
+    from minetwin.cli import main
 
     mass, q_out, q_in, velocity = synthetic_training(samples=12)
     (tmp_path / "train").mkdir()

@@ -16,7 +16,7 @@ import json
 import numpy as np
 import pytest
 
-from cosim.cli import main
+from minetwin.cli import main
 from surrogate.rom.container import Container
 from surrogate.rom.grid import Grid, mass_field
 from surrogate.rom.model import RomModel

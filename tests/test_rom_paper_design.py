@@ -214,7 +214,7 @@ def test_a_killed_run_resumes_from_its_checkpoint(reduced_run, tmp_path):
     run = design.run("small_out1000_in1000")
     key = pd.run_key(design, run)
     partial = work / "partial" / key
-    command = [sys.executable, "-m", "cosim.cli", "rom", "design", "--design", "reduced",
+    command = [sys.executable, "-m", "minetwin.cli", "rom", "design", "--design", "reduced",
                "--work", str(work), "--workers", "1"]
     process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL,
                                stderr=subprocess.PIPE, start_new_session=True)
@@ -282,7 +282,7 @@ def test_a_run_that_blows_up_is_recorded_and_the_design_goes_on(tmp_path):
 
 
 def test_cli_plan_and_bad_input():
-    command = [sys.executable, "-m", "cosim.cli", "rom", "design", "--design", "reduced",
+    command = [sys.executable, "-m", "minetwin.cli", "rom", "design", "--design", "reduced",
                "--work", "/nonexistent-never-written", "--plan"]
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr

@@ -95,7 +95,7 @@ def test_missing_or_malformed_files_are_clear_errors(tmp_path):
 
 
 def _minetwin(*args):
-    return subprocess.run([sys.executable, "-m", "cosim.cli", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "minetwin.cli", *args], capture_output=True,
                           text=True, cwd=ROOT, timeout=300)
 
 

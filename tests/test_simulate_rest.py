@@ -21,7 +21,7 @@ def test_simulate_serves_its_stockpile_over_rest_while_running(tmp_path):
     if not fmu_path("crusher").exists():
         pytest.skip("FMUs not built: run `minetwin fmus build` (make test does)")
     process = subprocess.Popen(
-        [sys.executable, "-m", "cosim.cli", "simulate", "examples/step_response.toml",
+        [sys.executable, "-m", "minetwin.cli", "simulate", "examples/step_response.toml",
          "--until", "120", "--out", str(tmp_path / "run"), "--rest-port", "0",
          "--realtime-factor", "15", "--quiet"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -52,7 +52,7 @@ def test_simulate_serves_its_stockpile_over_rest_while_running(tmp_path):
 
 def test_realtime_factor_needs_a_rest_port(tmp_path):
     result = subprocess.run(
-        [sys.executable, "-m", "cosim.cli", "simulate", "examples/step_response.toml",
+        [sys.executable, "-m", "minetwin.cli", "simulate", "examples/step_response.toml",
          "--until", "1", "--out", str(tmp_path), "--realtime-factor", "2"],
         capture_output=True, text=True)
     assert result.returncode == 2

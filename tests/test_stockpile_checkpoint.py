@@ -16,7 +16,7 @@ import warnings
 import numpy as np
 import pytest
 
-from cosim.cli import main
+from minetwin.cli import main
 from surrogate.checkpoint import FORMAT, VERSION, CheckpointError, load_checkpoint, save_checkpoint
 from surrogate.client import ClientOptions, ClientState, StockpileClient
 from surrogate.stockpile import StockpileAsset
@@ -99,7 +99,7 @@ def _crafted(path, tree):
 
 
 @pytest.mark.parametrize("target", ["os:system", "builtins:open", "subprocess:Popen",
-                                    "cosim.cli:main", "pickle:loads"])
+                                    "minetwin.cli:main", "pickle:loads"])
 def test_a_checkpoint_naming_a_class_outside_the_project_is_refused(tmp_path, target):
     path = tmp_path / "stockpile.checkpoint"
     _crafted(path, {"$obj": target, "attrs": {"args": "touch pwned"}})

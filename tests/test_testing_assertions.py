@@ -1,14 +1,14 @@
-"""The assertion helpers and tolerance bands of cosim.testing, on synthetic signals."""
+"""The assertion helpers and tolerance bands of minetwin.testing, on synthetic signals."""
 
 import numpy as np
 import pandas as pd
 import pytest
 
 from cosim.errors import ValidationError
-from cosim.testing.assertions import (
+from minetwin.testing.assertions import (
     account_ids, assert_ids_accounted, assert_mass_balance, assert_signal_within_band,
     assert_step_response, measure_step_response)
-from cosim.testing.bands import Tolerance, compare_signal
+from minetwin.testing.bands import Tolerance, compare_signal
 
 T = np.linspace(0.0, 100.0, 401)            # s, 0.25 s samples
 REF = 1000.0 + 200.0 * np.sin(T / 8.0)      # W, a power-like signal

@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from cosim.testing.opcua import LockstepStockpile, MockPlantServer
+from minetwin.testing.opcua import LockstepStockpile, MockPlantServer
 from surrogate.client import StockpileClient
 
 UNTIL_S = 60.0

@@ -6,7 +6,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from cosim.cli import main
+from minetwin.cli import main
 
 PLANT = Path(__file__).resolve().parent.parent / "examples" / "cosim_tests" / "plant.toml"
 
@@ -86,7 +86,7 @@ def test_a_reference_recorded_on_another_cpu_passes_here(recorded, tmp_path):
 
     scenario, _ = recorded
     elsewhere = tmp_path / "recorded_elsewhere.csv"
-    subprocess.run([sys.executable, "-m", "cosim.cli", "reference", "record", str(scenario),
+    subprocess.run([sys.executable, "-m", "minetwin.cli", "reference", "record", str(scenario),
                     "--out", str(elsewhere), "--until", "150"], check=True,
                    capture_output=True, env={**os.environ, **ANOTHER_CPU_ENV})
     assert main(["reference", "compare", str(scenario), str(elsewhere)]) == 0

@@ -1,11 +1,11 @@
-"""cosim.testing.scenario without running the simulator: overrides and the run's checks."""
+"""minetwin.testing.scenario without running the simulator: overrides and the run's checks."""
 
 import numpy as np
 import pandas as pd
 import pytest
 
 from cosim.errors import ValidationError
-from cosim.testing.scenario import ScenarioRun, apply_overrides
+from minetwin.testing.scenario import ScenarioRun, apply_overrides
 
 DOCUMENT = {"simulation": {"until_s": 300.0}, "crusher": {"fmu": "crusher",
                                                          "parameters": {"gap_width": 0.25}}}

@@ -12,5 +12,5 @@ apply to any run, not only the simulator's:
 ``profile_run``     the quadratic-hardness simulator run the reproductions analyse
 
 Each analysis module also exposes ``DESCRIPTION`` and ``reproduce(out_dir, *,
-quick, progress)`` for ``minetwin reproduce NAME`` (cosim/commands/reproduce.py).
+quick, progress)`` for ``minetwin reproduce NAME`` (minetwin/commands/reproduce.py).
 """

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from cosim.testing.scenario import run_scenario
+from minetwin.testing.scenario import run_scenario
 
 SCENARIO = Path(__file__).parent / "plant.toml"
 

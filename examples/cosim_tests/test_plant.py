@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from cosim.testing import assert_step_response, signal_from
+from minetwin.testing import assert_step_response, signal_from
 
 HERE = Path(__file__).parent
 SCENARIO = HERE / "plant.toml"

@@ -13,7 +13,7 @@ feeder runs at ``discharge_rate_kg_s`` from ``discharge_start_s`` on (default
 0, so that material flows through the pile from the start of a short demo;
 the inflow exceeds it, so the pile grows).
 
-Usage: ``python -m monitor.demo_stockpile --port 0 --speed 4 [--scenario
+Usage: ``python -m minetwin.demo_stockpile --port 0 --speed 4 [--scenario
 examples/step_response.toml]`` prints ``stockpile REST on
 http://127.0.0.1:PORT`` on stdout once it serves.
 
@@ -130,7 +130,7 @@ def run_scenario(path: str, port: int, host: str, speed: float, duration: float,
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m monitor.demo_stockpile",
+        prog="python -m minetwin.demo_stockpile",
         description="Run a stockpile asset fed by a scheduled inbound conveyor and serve its "
                     "REST interface (for demonstrating and testing the monitor).")
     parser.add_argument("--port", type=int, default=0, help="REST port (0: a free one)")

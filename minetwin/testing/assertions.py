@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cosim.errors import ValidationError
-from cosim.testing.bands import Tolerance, compare_signal
+from minetwin.testing.bands import Tolerance, compare_signal
 
 MAX_LISTED_IDS = 10
 """How many offending ids a message lists."""
@@ -223,7 +223,7 @@ def assert_matches_reference(timeseries, reference, *, signals=None, tolerances=
     comparison table. Returns the ``ComparisonReport``.
     """
     __tracebackhide__ = True  # pytest shows the message, not these lines
-    from cosim.testing.reference import ReferenceResult, compare
+    from minetwin.testing.reference import ReferenceResult, compare
 
     if not isinstance(reference, ReferenceResult):
         reference = ReferenceResult.read(reference)

@@ -75,7 +75,7 @@ def _run(args, until: float):
     import tempfile
 
     from cosim.master import CosimulationError
-    from cosim.testing.scenario import run_scenario
+    from minetwin.testing.scenario import run_scenario
 
     overrides = _parse_overrides(args.overrides)
     try:
@@ -93,7 +93,7 @@ def _run(args, until: float):
 
 def run_record(args) -> int:
     from cosim.errors import ValidationError
-    from cosim.testing.reference import ReferenceResult, ReferenceSpec
+    from minetwin.testing.reference import ReferenceResult, ReferenceSpec
 
     spec = ReferenceSpec.from_scenario(args.scenario)
     until = args.until if args.until is not None else spec.until
@@ -113,7 +113,7 @@ def run_record(args) -> int:
 
 
 def run_compare(args) -> int:
-    from cosim.testing.reference import ReferenceResult, ReferenceSpec, compare
+    from minetwin.testing.reference import ReferenceResult, ReferenceSpec, compare
 
     spec = ReferenceSpec.from_scenario(args.scenario)
     reference = ReferenceResult.read(args.reference)

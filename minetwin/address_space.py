@@ -1,6 +1,6 @@
 """Browse the mock 800xA server's address space and write it as Markdown.
 
-``python -m opcua_server.address_space [--out opcua_server/ADDRESS_SPACE.md]``
+``python -m minetwin.address_space [--out opcua_server/ADDRESS_SPACE.md]``
 starts a server (lockstep, default configuration, throw-away state, on
 127.0.0.1 and a free port), browses it from ``Objects`` as the ``viewer``
 user, as any OPC UA client would, and writes one table row per node: node id,
@@ -21,8 +21,8 @@ from pathlib import Path
 
 from asyncua import ua
 
-NAMESPACE_URI = "urn:minetwin:mock800xa"
-DEFAULT_OUT = Path(__file__).with_name("ADDRESS_SPACE.md")
+from opcua_protocol import NAMESPACE_URI
+DEFAULT_OUT = Path(__file__).resolve().parents[1] / "opcua_server" / "ADDRESS_SPACE.md"
 _HIERARCHY = ua.NodeId(ua.ObjectIds.HierarchicalReferences)
 _ACCESS = ((1, "read"), (2, "write"), (4, "history"))
 """AccessLevel bits (CurrentRead, CurrentWrite, HistoryRead)."""
@@ -107,7 +107,7 @@ def render(space: dict) -> str:
     lines = [
         "# Address space of the mock 800xA server",
         "",
-        "Written by `python -m opcua_server.address_space` from a browse of a running server",
+        "Written by `python -m minetwin.address_space` from a browse of a running server",
         "(default configuration) from `Objects`; `tests/test_opcua_address_space.py` checks it",
         f"against the server. Namespace `{NAMESPACE_URI}`, node ids `ns=<index>;s=<Id>`.",
         "Access is the node's AccessLevel; what a session may do is its UserAccessLevel",
@@ -134,7 +134,7 @@ def render(space: dict) -> str:
 
 
 async def browse_server(url: str, state: dict) -> dict:
-    from opcua_server.harness import connect
+    from minetwin.harness import connect
 
     client = await connect(url, state, "viewer")
     try:
@@ -144,10 +144,10 @@ async def browse_server(url: str, state: dict) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from opcua_server.harness import ServerProcess, prepare_state
+    from minetwin.harness import ServerProcess, prepare_state
 
     parser = argparse.ArgumentParser(
-        prog="python -m opcua_server.address_space",
+        prog="python -m minetwin.address_space",
         description="Start the mock 800xA server, browse it from Objects and write the "
                     "address space as Markdown.")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT,

@@ -15,18 +15,18 @@ import sys
 from cosim.errors import ValidationError
 
 COMMAND_MODULES = (
-    "cosim.commands.simulate",
-    "cosim.commands.reproduce",
-    "cosim.commands.integration",
-    "cosim.commands.serve",
-    "cosim.commands.stockpile",
-    "cosim.commands.monitor",
-    "cosim.commands.dem",
-    "cosim.commands.rom",
-    "cosim.commands.fmus",
-    "cosim.commands.reference",
-    "cosim.commands.events",
-    "cosim.commands.sizes",
+    "minetwin.commands.simulate",
+    "minetwin.commands.reproduce",
+    "minetwin.commands.integration",
+    "minetwin.commands.serve",
+    "minetwin.commands.stockpile",
+    "minetwin.commands.monitor",
+    "minetwin.commands.dem",
+    "minetwin.commands.rom",
+    "minetwin.commands.fmus",
+    "minetwin.commands.reference",
+    "minetwin.commands.events",
+    "minetwin.commands.sizes",
 )
 """Modules that add subcommands, in the order ``--help`` lists them."""
 

@@ -38,7 +38,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from cosim.commands.stockpile import parse_model_options
+    from minetwin.commands.stockpile import parse_model_options
     from cosim.errors import ValidationError
     from cosim.master import CosimulationError
     from cosim.scenario import load, run_scenario

@@ -56,11 +56,11 @@ def run(args) -> int:
     import time
     import urllib.request
 
-    from cosim.commands.stockpile import parse_model_options
+    from minetwin.commands.stockpile import parse_model_options
     from cosim.errors import ValidationError
     from cosim.storage import STORAGE_MODELS
     from opcua_server.audit import audit
-    from opcua_server.harness import (
+    from minetwin.harness import (
         ManagedProcess,
         ServerProcess,
         StockpileProcess,

@@ -4,7 +4,7 @@ As the FMI Reference FMUs ship one reference CSV per FMU, a MineTwin
 scenario names the signals that define its behaviour and a reference CSV
 holds them: a ``time`` column [s] followed by one column per signal, values
 written with 17 significant digits (exact round trip). A rerun passes if
-every signal lies inside its tolerance band (``cosim.testing.bands``).
+every signal lies inside its tolerance band (``minetwin.testing.bands``).
 
 The scenario TOML names the signals and tolerances in a ``[reference]``
 table (every key optional except ``signals``)::
@@ -29,7 +29,7 @@ import numpy as np
 
 from cosim.errors import ValidationError
 from cosim.plotstyle import signal_unit
-from cosim.testing.bands import SignalComparison, Tolerance, compare_signal
+from minetwin.testing.bands import SignalComparison, Tolerance, compare_signal
 from cosim.tomlfile import read_toml
 
 TIME_COLUMN = "time"
@@ -107,7 +107,7 @@ class ReferenceResult:
     @classmethod
     def from_timeseries(cls, timeseries, signals) -> "ReferenceResult":
         """Take ``signals`` from a time series indexed by time [s]."""
-        from cosim.testing.assertions import signal_from
+        from minetwin.testing.assertions import signal_from
 
         columns = {}
         for name in signals:
@@ -212,7 +212,7 @@ def compare(timeseries, reference: ReferenceResult, *, signals=None, tolerances=
     maps a signal to its ``Tolerance`` (else ``default``, else 1 % relative).
     A signal missing from the run fails with a message naming it.
     """
-    from cosim.testing.assertions import signal_from
+    from minetwin.testing.assertions import signal_from
 
     names = list(signals) if signals is not None else list(reference.signals)
     tolerances = tolerances or {}

@@ -4,7 +4,7 @@ Source: paper section "Integration test" (mock process simulator, stockpile
 surrogate as OPC UA client, tracking exchange). The
 server and client are the real ones (``opcua_server``, ``surrogate.client``)
 over Basic256Sha256 SignAndEncrypt with credentials and certificates made
-for the test (``opcua_server.harness.prepare_state``). In lockstep the
+for the test (``minetwin.harness.prepare_state``). In lockstep the
 server's clock advances only when the client calls ``Plant.AdvanceTime``,
 so a run is deterministic and as fast as the machine allows.
 
@@ -22,7 +22,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from cosim.testing.assertions import assert_ids_accounted, assert_mass_balance
+from minetwin.testing.assertions import assert_ids_accounted, assert_mass_balance
 
 LEDGER_TIMEOUT_S = 20.0
 """Wall seconds to wait for the server to write its ledger."""
@@ -52,7 +52,7 @@ class MockPlantServer:
         self.process = None
 
     def start(self) -> "MockPlantServer":
-        from opcua_server.harness import ServerProcess, prepare_state
+        from minetwin.harness import ServerProcess, prepare_state
 
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.state = prepare_state(self.workdir / "state")

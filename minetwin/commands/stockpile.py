@@ -78,8 +78,8 @@ def run(args) -> int:
     async def main() -> int:
         cert = key = None
         if not args.insecure:
-            from opcua_server.security import (APPLICATION_URI_CLIENT, ensure_certificate,
-                                               pki_paths)
+            from opcua_protocol import APPLICATION_URI_CLIENT
+            from opcua_server.security import ensure_certificate, pki_paths
 
             pki = pki_paths(args.state_dir)
             if await ensure_certificate(pki["key"], pki["cert"], APPLICATION_URI_CLIENT,

@@ -25,7 +25,7 @@ names; nothing to copy. Fixtures:
     rewrites the reference instead, ``--minetwin-plots DIR`` keeps the PNG
     overlays of failing signals.
 
-Assertions live in ``cosim.testing`` (``assert_mass_balance``,
+Assertions live in ``minetwin.testing`` (``assert_mass_balance``,
 ``assert_ids_accounted``, ``assert_signal_within_band``,
 ``assert_matches_reference``, ``assert_step_response``). This module
 imports only pytest at load time, so it costs nothing in test runs that do
@@ -63,7 +63,7 @@ def pytest_report_header(config) -> str:
 @pytest.fixture
 def run_scenario(tmp_path_factory):
     """Callable ``run_scenario(path, until=None, overrides=None, seed=None, **options)``."""
-    from cosim.testing.scenario import run_scenario as run
+    from minetwin.testing.scenario import run_scenario as run
 
     runs = []
 
@@ -81,7 +81,7 @@ def run_scenario(tmp_path_factory):
 @pytest.fixture
 def load_fmu():
     """Callable ``load_fmu(path, interface, name=None, parameters=None)`` -> validated component."""
-    from cosim.testing.fmus import load_validated_fmu
+    from minetwin.testing.fmus import load_validated_fmu
 
     loaded = []
 
@@ -98,7 +98,7 @@ def load_fmu():
 @pytest.fixture
 def mock_800xa(tmp_path_factory):
     """A running mock 800xA server in lockstep on a free 127.0.0.1 port (stopped after)."""
-    from cosim.testing.opcua import MockPlantServer
+    from minetwin.testing.opcua import MockPlantServer
 
     server = MockPlantServer(tmp_path_factory.mktemp("mock800xa"))
     server.start()
@@ -113,7 +113,7 @@ def stockpile_client(mock_800xa):
     ``client.run(until=S)`` advances server and client together and returns
     an ``ExchangeResult`` (``assert_mass_balance()``, ``assert_ids_accounted()``).
     """
-    from cosim.testing.opcua import LockstepStockpile
+    from minetwin.testing.opcua import LockstepStockpile
 
     clients = []
 
@@ -130,8 +130,8 @@ def stockpile_client(mock_800xa):
 @pytest.fixture
 def reference_check(request, tmp_path):
     """Callable ``reference_check(timeseries, reference_csv, scenario=None, signals=None)``."""
-    from cosim.testing.assertions import assert_matches_reference
-    from cosim.testing.reference import ReferenceResult, ReferenceSpec
+    from minetwin.testing.assertions import assert_matches_reference
+    from minetwin.testing.reference import ReferenceResult, ReferenceSpec
 
     record = request.config.getoption("--minetwin-record")
     plots = request.config.getoption("--minetwin-plots")

@@ -6,7 +6,7 @@ TOML is read, dotted ``overrides`` are applied (``{"crusher.fmu":
 the simulator's own rules (so a typo in an override is an error naming the
 key) and run into ``out``, which then holds ``timeseries.parquet``,
 ``events.sqlite`` and ``summary.json`` as ``minetwin simulate`` writes them.
-The ``[reference]`` table (``cosim.testing.reference``) is not the
+The ``[reference]`` table (``minetwin.testing.reference``) is not the
 simulator's and is set aside before validation.
 """
 
@@ -55,7 +55,7 @@ class ScenarioRun:
         """Plant-wide: mass in = mass held + mass out at the end (``summary.json``),
         and at every recorded time (``plant.mass_balance_rel_error`` if recorded)."""
         __tracebackhide__ = True
-        from cosim.testing.assertions import assert_mass_balance
+        from minetwin.testing.assertions import assert_mass_balance
 
         worst = assert_mass_balance(self.summary, rtol=rtol, where="the plant")
         column = "plant.mass_balance_rel_error"
@@ -74,7 +74,7 @@ class ScenarioRun:
     def assert_particle_ids_accounted(self):
         """Every particle that appeared (event store) is in the plant or has left it, once."""
         __tracebackhide__ = True
-        from cosim.testing.assertions import assert_ids_accounted
+        from minetwin.testing.assertions import assert_ids_accounted
 
         appeared = self.events.particles(type="appear")["particle_id"].to_numpy()
         plant = self.simulation.plant

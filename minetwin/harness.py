@@ -19,8 +19,9 @@ import sys
 import time
 from pathlib import Path
 
-from opcua_server.security import (APPLICATION_URI_CLIENT, ROLES, ensure_certificate,
-                                   pki_paths, trust_certificate, write_users)
+from opcua_protocol import APPLICATION_URI_CLIENT, NAMESPACE_URI
+from opcua_server.security import (ROLES, ensure_certificate, pki_paths, trust_certificate,
+                                   write_users)
 
 
 def free_port() -> int:
@@ -59,7 +60,7 @@ def prepare_state(root: Path) -> dict:
 
 def minetwin_command() -> list[str]:
     """The `minetwin` command line of this interpreter (works without the console script)."""
-    return [sys.executable, "-m", "cosim.cli"]
+    return [sys.executable, "-m", "minetwin.cli"]
 
 
 class ManagedProcess:
@@ -235,7 +236,7 @@ async def _two_more_heartbeats(server: ServerProcess, timeout: float) -> None:
 
     client = await connect(server.url, server.state, "viewer")
     try:
-        idx = await client.get_namespace_index("urn:minetwin:mock800xa")
+        idx = await client.get_namespace_index(NAMESPACE_URI)
         heartbeat = client.get_node(ua.NodeId("Plant.SP201.Heartbeat", idx))
         first, end = await heartbeat.read_value(), time.monotonic() + timeout
         while await heartbeat.read_value() < first + 2 and time.monotonic() < end:

@@ -1,1 +1,0 @@
-"""Subcommands of the ``minetwin`` CLI, one module each (see cosim.cli)."""

@@ -1,0 +1,1 @@
+"""Subcommands of the ``minetwin`` CLI, one module each (see minetwin.cli)."""
