@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "minetwin.commands.monitor",
     "minetwin.commands.dem",
     "minetwin.commands.rom",
+    "minetwin.commands.fidelity",
     "minetwin.commands.fmus",
     "minetwin.commands.reference",
     "minetwin.commands.events",

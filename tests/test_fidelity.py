@@ -1,0 +1,115 @@
+"""The choice of the cheapest model that meets a stated accuracy (cosim.fidelity).
+
+The cards here are built in the test to pin the rules (bracketing, conservative
+error, noise-floor refusal, hysteresis); measured cards are checked where they are
+made (tests of ``minetwin fidelity calibrate``).
+"""
+
+import pytest
+
+from cosim.errors import ValidationError
+from cosim.fidelity import CardRow, FidelityCard, Ladder, OperatingPoint, choose
+
+FLOOR = 0.04
+POINTS = [(200.0, 100e3), (1200.0, 100e3), (1200.0, 2000e3)]
+
+
+def card(model, errors, costs, window_s=30.0):
+    rows = tuple(CardRow(throughput_kg_s=q, held_mass_kg=m, window_s=window_s,
+                         tracking_error=FLOOR if model == "dem" else e, noise_floor=FLOOR,
+                         wall_s_per_s=c, scenario=f"q{q:g}_m{m:g}")
+                 for (q, m), e, c in zip(POINTS, errors, costs))
+    return FidelityCard(model=model, rows=rows, provenance={"measured_by": "test"})
+
+
+CARDS = [card("fifo", [0.45, 0.50, 0.55], [1e-4, 1e-4, 1e-4]),
+         card("mixing", [0.30, 0.35, 0.40], [2e-4, 2e-4, 2e-4]),
+         card("rom", [0.08, 0.12, 0.09], [5e-3, 5e-3, 2e-2]),
+         card("dem", [0, 0, 0], [10.0, 12.0, 150.0])]
+SCENE = OperatingPoint(throughput_kg_s=1200.0, held_mass_kg=1500e3)
+
+
+@pytest.mark.parametrize("target, model", [(0.6, "fifo"), (0.45, "mixing"), (0.12, "rom"),
+                                           (0.11, "dem"), (FLOOR, "dem")])
+def test_the_cheapest_model_that_meets_the_target_runs(target, model):
+    choice = choose(CARDS, SCENE, tracking_error=target)
+    assert choice.model == model
+    chosen = next(c for c in choice.compared if c["model"] == model)
+    assert chosen["tracking_error"] <= target
+    cheaper = [c for c in choice.compared if c["wall_s_per_s"] < chosen["wall_s_per_s"]]
+    assert all(c["tracking_error"] > target for c in cheaper)
+
+
+def test_the_error_at_a_point_is_the_worst_of_the_rows_around_it():
+    rom = CARDS[2]
+    assert rom.error_at(SCENE) == pytest.approx(0.12)  # rows at 1.2 t/s, 0.1 and 2 t held
+    assert set(r.scenario for r in rom.rows_at(SCENE)) == {"q1200_m100000", "q1200_m2e+06"}
+    assert rom.error_at(OperatingPoint(200.0, 100e3)) == pytest.approx(0.08)  # a measured row
+
+
+def test_a_shorter_window_than_measured_is_not_certified():
+    rom = CARDS[2]
+    assert rom.error_at(OperatingPoint(1200.0, 1500e3, window_s=10.0)) == float("inf")
+    choice = choose(CARDS, OperatingPoint(1200.0, 1500e3, window_s=10.0), tracking_error=0.2)
+    assert choice.model == "dem"
+
+
+def test_cost_grows_with_held_mass():
+    dem = CARDS[3]
+    assert dem.cost_at(OperatingPoint(1200.0, 2000e3)) > dem.cost_at(OperatingPoint(1200.0, 100e3))
+
+
+def test_a_target_below_the_noise_floor_is_refused_naming_the_floor():
+    with pytest.raises(ValidationError, match=r"accuracy.tracking_error.*0\.040.*noise floor"):
+        choose(CARDS, SCENE, tracking_error=0.01)
+
+
+def test_a_budget_gets_the_most_accurate_model_it_affords():
+    assert choose(CARDS, SCENE, wall_s_per_s=1.0).model == "rom"
+    assert choose(CARDS, SCENE, wall_s_per_s=1.5e-4).model == "fifo"
+    with pytest.raises(ValidationError, match="budget.wall_s_per_s"):
+        choose(CARDS, SCENE, wall_s_per_s=1e-6)
+
+
+def test_one_kind_of_target_only():
+    with pytest.raises(ValidationError, match="either"):
+        choose(CARDS, SCENE)
+    with pytest.raises(ValidationError, match="either"):
+        choose(CARDS, SCENE, tracking_error=0.2, wall_s_per_s=1.0)
+
+
+def test_outside_its_card_the_model_hands_over_and_returns_with_hysteresis():
+    ladder = Ladder(CARDS, tracking_error=0.15, margin=0.1, dwell_s=30.0)
+    assert ladder.start(SCENE).model == "rom"
+    assert ladder.update(0.0, SCENE) is None
+    empty = OperatingPoint(1200.0, 20e3)  # a pile nearly empty: below the ROM's range
+    up = ladder.update(1.0, empty)
+    assert (up.from_model, up.to_model) == ("rom", "dem") and "range of its card" in up.reason
+    edge = OperatingPoint(1200.0, 105e3)  # back in range, but within the 10 % margin
+    assert all(ladder.update(t, edge) is None for t in range(2, 100))
+    inside = OperatingPoint(1000.0, 1500e3)
+    assert ladder.update(100.0, inside) is None  # well inside: the dwell starts
+    assert ladder.update(129.0, inside) is None
+    down = ladder.update(130.0, inside)
+    assert (down.from_model, down.to_model) == ("dem", "rom")
+    assert [s.to_model for s in ladder.switches] == ["dem", "rom"]
+
+
+def test_an_input_outside_the_training_range_hands_over_at_once():
+    ladder = Ladder(CARDS, tracking_error=0.15)
+    ladder.start(SCENE)
+    switch = ladder.update(5.0, SCENE, out_of_range={"mass_distribution_residual"})
+    assert switch.to_model == "dem" and "mass_distribution_residual" in switch.reason
+
+
+def test_cards_round_trip_through_strict_json():
+    import json
+
+    from cosim.jsonio import dumps
+
+    for c in CARDS:
+        assert FidelityCard.from_json(json.loads(dumps(c.to_json()))) == c
+    with pytest.raises(ValidationError, match="format"):
+        FidelityCard.from_json({"model": "rom", "rows": []})
+    with pytest.raises(ValidationError, match=r"rows\[0\]\.tracking_error"):
+        FidelityCard(model="rom", rows=(CardRow(1.0, 1.0, 30.0, float("nan"), 0.0, 1.0),))
