@@ -44,8 +44,15 @@ Integrators (``method``):
   solution (examples/mill_integrator_stability.py).
 * ``"explicit"``: the paper's forward-Euler update x + dt (dx/dt). Its
   stability limit is dt < 2 / max(P/h + Q); with k_esc = 1000/s the fines
-  go negative above dt = 1 ms and the update diverges above 2 ms. Kept only
-  to show that failure.
+  go negative above dt = 1 ms and the update diverges above 2 ms. Where it
+  is stable it costs about half the exponential integrator's time (no
+  exponentials; measured median 1.9x over 15 alternated repeats of 2,000
+  particles, machine under load).
+* ``"auto"``: the cheaper explicit update where the step is safely inside
+  its positivity limit, ``dt <= EXPLICIT_SAFETY / max(P/h + Q)``
+  (``explicit_step_limit``), the exponential integrator otherwise; decided
+  every step from that step's rates and hardness ("model no more than a
+  scene needs", docs/architecture.md "Fidelity").
 
 A particle whose mass is all gone keeps its old ``f`` (its new mass is 0).
 """
@@ -59,8 +66,29 @@ from cosim.errors import ValidationError, check_finite_range
 from cosim.numerics import rows_times_transpose
 from cosim.sizes import N_CLASSES
 
-METHODS = ("exponential", "explicit")
+METHODS = ("exponential", "explicit", "auto")
 """Mill integrators, default first."""
+
+EXPLICIT_SAFETY = 0.5
+"""Fraction of the explicit update's positivity limit 1 / max(P/h + Q) that
+``method="auto"`` still gives to it (its stability limit is twice that limit)."""
+
+
+def explicit_step_limit(hardness, breakage_rate, escape_rate) -> float:
+    """Largest step [s] at which the explicit update keeps every class mass
+    non-negative: 1 / max_k (P^k / h_min + Q^k) (inf when nothing breaks or
+    escapes). ``hardness`` [-], rates [1/s] as in ``mill_step_mass``."""
+    h_min = float(np.min(hardness)) if np.size(hardness) else 1.0
+    loss = np.asarray(breakage_rate, dtype=np.float64) / h_min + np.asarray(escape_rate,
+                                                                            dtype=np.float64)
+    fastest = float(loss.max()) if loss.size else 0.0
+    return 1.0 / fastest if fastest > 0 else float("inf")
+
+
+def integrator_for(dt: float, hardness, breakage_rate, escape_rate) -> str:
+    """The integrator ``method="auto"`` uses for a step of ``dt`` [s]."""
+    limit = explicit_step_limit(hardness, breakage_rate, escape_rate)
+    return "explicit" if dt <= EXPLICIT_SAFETY * limit else "exponential"
 
 
 def _check_operator(field: str, matrix, *, finer_only: bool, active=None) -> np.ndarray:
@@ -167,7 +195,7 @@ def mill_step_mass(class_mass, hardness, breakage_rate, daughter_fraction, escap
         D[i, j], fraction of mass broken out of class j going to class i < j.
     dt : float [s]
         Communication step, > 0.
-    method : "exponential" (default) or "explicit"
+    method : "exponential" (default), "explicit" or "auto"
     substeps : int
         Split ``dt`` into this many equal steps with the operators held (default 1).
 
@@ -195,6 +223,8 @@ def mill_step_mass(class_mass, hardness, breakage_rate, daughter_fraction, escap
         _check_operator("daughter_fraction", daughter_fraction, finer_only=True, active=rate > 0).T)
     if int(substeps) < 1:
         raise ValidationError("substeps", ">= 1", f"got {substeps!r}")
+    if method == "auto":
+        method = integrator_for(float(dt) / int(substeps), h, rate, escape)
     kernel = _exponential_kernel if method == "exponential" else _explicit_kernel
     step_escaped = np.empty_like(x)
     escaped = np.zeros_like(x)

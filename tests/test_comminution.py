@@ -15,7 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import fmu_reference as ref
-from cosim.comminution import apply_fragmentation, mill_step, mill_step_mass
+from cosim.comminution import (EXPLICIT_SAFETY, apply_fragmentation, explicit_step_limit,
+                               integrator_for, mill_step, mill_step_mass)
 from cosim.errors import ValidationError
 
 UNIFORM_DAUGHTERS = np.array([[1.0 / j if i < j else 0.0 for j in range(16)] for i in range(16)])
@@ -134,6 +135,23 @@ def test_explicit_update_fails_above_its_limit_and_default_does_not():
             assert np.max(np.abs(x)) > 1e6 * mass.max()  # diverged: masses of huge magnitude
         else:
             assert np.min(x) >= 0.0 and np.all(x.sum(axis=1) <= mass)
+
+
+def test_auto_takes_the_explicit_update_only_inside_its_limit():
+    f, mass, hardness = _particles(5)
+    rate, escape = _rates()
+    limit = explicit_step_limit(hardness, rate, escape)
+    assert limit == pytest.approx(1.0 / max(rate / hardness.min() + escape))
+    x = f * mass[:, None]
+    for dt, expected in ((0.9 * EXPLICIT_SAFETY * limit, "explicit"),
+                         (1.1 * EXPLICIT_SAFETY * limit, "exponential"), (0.5, "exponential")):
+        assert integrator_for(dt, hardness, rate, escape) == expected
+        auto = mill_step_mass(x, hardness, rate, UNIFORM_DAUGHTERS, escape, dt, method="auto")
+        chosen = mill_step_mass(x, hardness, rate, UNIFORM_DAUGHTERS, escape, dt, method=expected)
+        assert all(np.array_equal(a, b) for a, b in zip(auto, chosen))
+        assert np.min(auto[0]) >= 0.0
+        assert np.allclose(auto[0].sum(axis=1) + auto[1].sum(axis=1), mass, rtol=1e-12)
+    assert explicit_step_limit(hardness, np.zeros(16), np.zeros(16)) == float("inf")
 
 
 def test_bad_operator_input_is_refused_with_the_field_named():
