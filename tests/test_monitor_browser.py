@@ -660,3 +660,56 @@ def test_monitor_alarm_acknowledgement_survives_a_reload(driven_stockpile, tmp_p
             assert errors == []
         finally:
             browser.close()
+
+
+SCREENS = {"laptop_1366x768": {"viewport": {"width": 1366, "height": 768}},
+           "phone_390x844": {"viewport": {"width": 390, "height": 844}, "is_mobile": True,
+                             "has_touch": True, "device_scale_factor": 2}}
+"""A common laptop screen and a phone's width (CSS pixels)."""
+
+VISIBLE_IDS = ("status", "alarm-count", "sim-time", "held-mass", "fill-pct", "grade", "hardness",
+               "d80", "discharge-actual", "discharge-rate", "trend-range", "export-csv",
+               "operator", "ack-all", "colour-by")
+
+
+def test_monitor_fits_a_laptop_and_a_phone(processes, tmp_path):
+    """At 1366 x 768 and at a phone's 390 px the page does not scroll sideways,
+    every value and control lies inside the screen's width, and each trend
+    fits its panel. Screenshots: monitor_<screen>.png."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    _, _, monitor_url = processes
+    shots = []
+    with sync_api.sync_playwright() as playwright:
+        browser = _launch(playwright)
+        try:
+            for name, options in SCREENS.items():
+                page = browser.new_page(**options)
+                width = options["viewport"]["width"]
+                page.goto(monitor_url + "?poll=400")
+                sync_api.expect(page.locator("#status")).to_have_text("LIVE", timeout=15_000)
+                page.wait_for_function("window.monitorState.updates >= 3", timeout=15_000)
+                assert page.evaluate("document.documentElement.scrollWidth") <= width, name
+                for element_id in VISIBLE_IDS:
+                    box = page.locator(f"#{element_id}").bounding_box()
+                    assert box is not None and box["width"] > 0, (name, element_id)
+                    assert 0 <= box["x"] and box["x"] + box["width"] <= width, (name, element_id, box)
+                # the state of the plant is on the first screen
+                for element_id in ("status", "alarm-count", "sim-time"):
+                    box = page.locator(f"#{element_id}").bounding_box()
+                    assert box["y"] + box["height"] <= options["viewport"]["height"], (name, element_id)
+                trends = page.evaluate("""() => [...document.querySelectorAll('.trend')].map(
+                    (t) => [t.getBoundingClientRect().right, t.querySelector('.uplot')
+                            .getBoundingClientRect().right, t.parentElement.getBoundingClientRect().right])""")
+                assert len(trends) == 6
+                for box_right, chart_right, grid_right in trends:
+                    assert chart_right <= box_right + 1 and box_right <= grid_right + 1, (name, trends)
+                shots.append(tmp_path / f"monitor_{name}.png")
+                page.screenshot(path=str(shots[-1]), full_page=True)
+                page.close()
+        finally:
+            browser.close()
+    copy_to = os.environ.get("MINETWIN_SCREENSHOT_DIR")
+    if copy_to:
+        Path(copy_to).mkdir(parents=True, exist_ok=True)
+        for shot in shots:
+            shutil.copy(shot, Path(copy_to) / shot.name)

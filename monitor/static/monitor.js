@@ -67,6 +67,7 @@ function restarted(fromS, toS) {
   state.events = [];
   state.lastSeq = 0;
   state.zoom = null;
+  state.originNames = new Map();
   $("restart-detail").textContent =
     `its clock went back from t = ${fromS.toFixed(1)} s to ${toS.toFixed(1)} s at ${clock(at)}; ` +
     "trends and events start again with the new run; the old run's active alarms are cleared.";
@@ -93,7 +94,8 @@ async function poll() {
     Object.assign(state, {particles: data.particles, fields: data.fields, feed: data.feed,
                           totals: data.totals, lastTime: data.totals.time_s});
     for (const source of ["totals", "particles", "feed", "events"]) state.received[source] = now;
-    state.originNames = new Map((data.particles.origin_names || []).map((o) => [o.origin, o.name]));
+    // names are kept once seen: the events name sources whose particles have all left
+    for (const o of data.particles.origin_names || []) state.originNames.set(o.origin, o.name);
     state.updates += 1;
     showReachable(true);
     // a drawing fault is a page bug, not an unreachable stockpile: report it
@@ -238,9 +240,9 @@ function showAlarms(book) {
     const cells = [STATE_TEXT[a.state], a.name, limitText(a), `${a.value.toFixed(1)} ${a.unit}`,
                    `${a.raised_s.toFixed(1)}, ${wallClock(a.raised_at)}`, cleared, acked];
     for (const text of cells) tr.appendChild(document.createElement("td")).textContent = text;
-    const action = tr.appendChild(document.createElement("td"));
+    // beside the state, so that it is on screen when a narrow screen scrolls the table
     if (a.acked_by === null) {
-      const button = action.appendChild(document.createElement("button"));
+      const button = tr.firstChild.appendChild(document.createElement("button"));
       button.type = "button";
       button.className = "ack";
       button.textContent = "acknowledge";
