@@ -247,4 +247,13 @@ def test_example_figures(figures, tmp_path):
     ladder.plot_ladder({"points": points, "dem_noise_floor": 0.04,
                         "reference_wall_s_per_simulated_s": 20.0, "reference_dt_factor": 1.0,
                         "scenario": doe.HELDOUT_SCENARIOS[0].name}, tmp_path / "ladder.png")
-    _check(figures, ["stability.png", "ladder.png"], run=None)
+    from surrogate.rom.grid import Grid
+
+    grid = Grid(x_min=-2.0, x_max=2.0, y_min=0.0, y_max=2.0, nx=8, ny=4)
+    rng = np.random.default_rng(2)
+    fields = {"mass": rng.uniform(0, 1, (4, 8)), "velocity": rng.normal(0, 0.1, (4, 8, 2)),
+              "grade": rng.uniform(0, 1, (4, 8)), "hardness": rng.uniform(1, 2, (4, 8))}
+    ladder.plot_fields({"DEM": fields, "ROM (default modes)": fields}, grid, 30.0,
+                       "heldout", tmp_path / "pile_fields.png")
+    _check(figures, ["stability.png", "ladder.png", "pile_fields.png"], run=None)
+    assert "storage models DEM and ROM (default modes)" in figures["pile_fields.png"][1]
