@@ -133,7 +133,9 @@ def test_integration_figures_show_every_source(figures, tmp_path):
 
     rows = [{"time_s": float(k), "held_mass_kg": 1e3 * k, "grade": 0.2} for k in range(10)]
     log = [{"time_s": float(k), "by_source": {"0": 500.0}} for k in range(5, 10)]
-    ledger = {"outflow_log": log, "delivered_by_source": {"0": 5e3, "1": 3e3}, "time_s": 10.0}
+    # bins 1 and 2 of source 0 and bin 3 of source 1 entered; only source 0's ore has left
+    ledger = {"outflow_log": log, "source_of": {"1": 0, "2": 0, "3": 1},
+              "delivered_by_source": {"0": 1e3}, "time_s": 10.0}
     _plots(tmp_path, ledger, {"history": rows, "model": "fifo"})
     _check(figures, ["stockpile_mass_grade.png", "cv301_composition.png"],
            run="storage model fifo")
