@@ -672,6 +672,7 @@ VISIBLE_IDS = ("status", "alarm-count", "sim-time", "held-mass", "fill-pct", "gr
                "operator", "ack-all", "colour-by")
 
 
+@pytest.mark.slow  # 23 s here: two pages, full-page screenshots at a phone's pixel ratio
 def test_monitor_fits_a_laptop_and_a_phone(processes, tmp_path):
     """At 1366 x 768 and at a phone's 390 px the page does not scroll sideways,
     every value and control lies inside the screen's width, and each trend
