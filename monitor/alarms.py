@@ -35,7 +35,11 @@ An occurrence of an alarm moves through these states:
 A stockpile restart (its clock goes back) clears the active alarms of the old
 run (``cleared_by = "restart"``); an unacknowledged one still waits for the
 operator. Each acknowledgement records who (the name the operator gives) and
-when (wall clock, UTC, and simulation time).
+when (wall clock, UTC, and simulation time). An occurrence's ``raised_s`` and
+``cleared_s`` are the simulation times [s] of the rows that raised and
+cleared it; ``raised_at`` and ``cleared_at`` the monitor's wall clock (UTC,
+ISO 8601) when it checked them, so a monitor started beside a running
+stockpile dates the alarms of the rows it catches up on to its start.
 """
 
 from __future__ import annotations
