@@ -171,9 +171,9 @@ def plot_ladder(result: dict, path) -> None:
 
 
 def plot_fields(rows: dict, grid, time_s: float, scenario: str, path) -> None:
-    """pile_fields.png: speed [m/s], grade [-] and hardness [-] of each storage
+    """pile_fields.png: speed [m/s], grade [%] and hardness [-] of each storage
     model in ``rows`` (name -> fields ``mass`` (ny, nx) [kg], ``velocity``
-    (ny, nx, 2) [m/s], ``grade``, ``hardness``) on the ROM's ``grid``, at ``time_s``."""
+    (ny, nx, 2) [m/s], ``grade`` [-], ``hardness`` [-]) on the ROM's ``grid``, at ``time_s``."""
     from cosim import plotstyle
 
     extent = (grid.x_min, grid.x_max, grid.y_min, grid.y_max)
@@ -183,7 +183,7 @@ def plot_fields(rows: dict, grid, time_s: float, scenario: str, path) -> None:
         empty = f["mass"] <= 0
         speed = np.where(empty, np.nan, np.linalg.norm(f["velocity"], axis=-1))
         panels = (("speed [m/s]", speed, "viridis", None),
-                  ("grade [-]", np.where(empty, np.nan, f["grade"]), "magma", (0.2, 0.8)),
+                  ("grade [%]", np.where(empty, np.nan, 100 * f["grade"]), "magma", (20, 80)),
                   ("hardness [-]", np.where(empty, np.nan, f["hardness"]), "coolwarm", (1, 2)))
         for c, (title, values, cmap, lim) in enumerate(panels):
             ax = axes[r, c]

@@ -38,13 +38,23 @@ def figures():
     plotstyle.SAVE_HOOKS.remove(hook)
 
 
+def _axis_labels(fig):
+    return [label for ax in fig.axes for label in (ax.get_xlabel(), ax.get_ylabel()) if label]
+
+
 def _check(figures, names, run=RUN):
     assert sorted(figures) == sorted(names)
     for name in names:
-        found, title, _ = figures[name]
+        found, title, fig = figures[name]
         assert found == [], (name, found)
         if run is not None:
             assert run in title, (name, title)
+        # one unit per quantity, as in the monitor: grade in %, hardness relative [-]
+        for label in _axis_labels(fig):
+            if "grade" in label.lower():
+                assert "[%]" in label, (name, label)
+            if "hardness" in label.lower():
+                assert "[-]" in label, (name, label)
 
 
 def _series(t, **columns):
