@@ -229,6 +229,19 @@ def test_monitor_page_against_a_running_stockpile(processes, tmp_path):
                 f"its clock went back from t = {restarts[0]['from_s']:.1f} s to "
                 f"{restarts[0]['to_s']:.1f} s")
             page.screenshot(path=str(shots[2]), full_page=True)
+            # the monitor server saw the clock go back too: the old run's LEVEL LOW (a few
+            # t of the default 2000 t) cleared by the restart, and the new run raised its own
+            deadline = time.monotonic() + 10
+            while True:
+                alarms = get(monitor_url + "monitor/alarms")[1]["alarms"]
+                low = [o for o in alarms if o["id"] == "level_low"]
+                if len(low) == 2 or time.monotonic() > deadline:
+                    break
+                time.sleep(0.2)
+            assert [(o["state"], o["cleared_by"]) for o in low] == \
+                [("CLEARED_UNACK", "restart"), ("ACTIVE_UNACK", None)]
+            # both at the new run's first row: the old one clears as the new one is raised
+            assert low[0]["cleared_s"] == low[1]["raised_s"] < last_time
 
             assert running["monitor"].poll() is None
             assert all(url.startswith(monitor_url) or url.startswith("data:")
