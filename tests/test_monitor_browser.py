@@ -585,6 +585,19 @@ def test_monitor_time_range_selection(driven_stockpile):
             y_max = page.evaluate("window.monitorState.charts.mass.scales.y.max")
             assert y_max == pytest.approx(1.1 * whole_max)
             assert _export(page)[2] == _rows(history, header, 1.0, 100.0)
+
+            # hovering shows the values of the row under the cursor, in the trend's unit
+            over = page.locator("#trend-mass .u-over").bounding_box()
+            page.mouse.move(over["x"] + 0.3 * over["width"], over["y"] + over["height"] / 2)
+            page.wait_for_function("window.monitorState.charts.mass.cursor.idx !== null")
+            index, shown = page.evaluate("""() => {
+                const u = window.monitorState.charts.mass;
+                return [u.cursor.idx, [...u.root.querySelectorAll('.u-legend .u-value')]
+                        .map((el) => el.textContent)]; }""")
+            row = page.evaluate(f"window.monitorState.history[{index}]")
+            assert row == history[index]
+            assert shown[:2] == [f"{row['time_s']:.1f}", f"{row['held_mass_kg'] / 1000:.2f}"]
+            assert 0.2 < (row["time_s"] - 1.0) / 99.0 < 0.4
             assert errors == []
         finally:
             browser.close()
