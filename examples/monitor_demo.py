@@ -5,8 +5,10 @@ interface (``python -m minetwin.demo_stockpile``, or any stockpile URL given
 with ``--stockpile``) and the monitor (``minetwin monitor``); lets the
 simulation run, then opens the page in Debian's chromium (Playwright) and
 saves ``OUT/monitor.png`` (coloured by grade), ``OUT/monitor_origin.png``
-(coloured by origin) and ``OUT/monitor_zoomed.png`` (the trends zoomed to
-the middle third of the run by dragging across the held-mass trend).
+(coloured by origin), ``OUT/monitor_zoomed.png`` (the trends zoomed to
+the middle third of the run by dragging across the held-mass trend), and
+the page on a 1366 x 768 laptop and a 390 px phone
+(``OUT/monitor_laptop.png``, ``OUT/monitor_phone.png``).
 Everything is stopped at the end. With ``--scenario`` the stockpile is the
 mine simulator's (``demo_stockpile --scenario``), e.g. the paper-scale
 2,000 t pile of ``examples/paper_scale.toml``.
@@ -29,6 +31,10 @@ from pathlib import Path
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--no-first-run"]
+SCREENS = {"laptop": {"viewport": {"width": 1366, "height": 768}},
+           "phone": {"viewport": {"width": 390, "height": 844}, "is_mobile": True,
+                     "has_touch": True, "device_scale_factor": 2}}
+"""A common laptop screen and a phone's width (CSS pixels)."""
 
 
 def start(args, pattern, stream):
@@ -102,11 +108,19 @@ def main(argv=None) -> int:
             page.screenshot(path=str(args.out / "monitor_zoomed.png"), full_page=True)
             shown = page.evaluate("[document.getElementById('held-mass').textContent, "
                                   "document.getElementById('grade').textContent]")
+            for name, options in SCREENS.items():
+                small = browser.new_page(**options)
+                small.goto(page_url)
+                small.wait_for_function("window.monitorState.updates >= 2", timeout=20_000)
+                small.screenshot(path=str(args.out / f"monitor_{name}.png"), full_page=True)
+                small.close()
             browser.close()
         print(f"held mass {shown[0]} t, grade {shown[1]} %")
         print(args.out / "monitor.png")
         print(args.out / "monitor_origin.png")
         print(args.out / "monitor_zoomed.png")
+        for name in SCREENS:
+            print(args.out / f"monitor_{name}.png")
     finally:
         for proc in processes:
             stop(proc)

@@ -170,6 +170,44 @@ def plot_ladder(result: dict, path) -> None:
     plotstyle.save(fig, path, dpi=130)
 
 
+def plot_fields(rows: dict, grid, time_s: float, scenario: str, path) -> None:
+    """pile_fields.png: speed [m/s], grade [%] and hardness [-] of each storage
+    model in ``rows`` (name -> fields ``mass`` (ny, nx) [kg], ``velocity``
+    (ny, nx, 2) [m/s], ``grade`` [-], ``hardness`` [-]) on the ROM's ``grid``, at ``time_s``."""
+    from cosim import plotstyle
+
+    extent = (grid.x_min, grid.x_max, grid.y_min, grid.y_max)
+    fig, axes = plotstyle.pyplot().subplots(len(rows), 3, figsize=(13, 2.6 * len(rows)),
+                                            sharex=True, sharey=True, squeeze=False)
+    for r, (name, f) in enumerate(rows.items()):
+        empty = f["mass"] <= 0
+        speed = np.where(empty, np.nan, np.linalg.norm(f["velocity"], axis=-1))
+        panels = (("speed [m/s]", speed, "viridis", None),
+                  ("grade [%]", np.where(empty, np.nan, 100 * f["grade"]), "magma", (20, 80)),
+                  ("hardness [-]", np.where(empty, np.nan, f["hardness"]), "coolwarm", (1, 2)))
+        for c, (title, values, cmap, lim) in enumerate(panels):
+            ax = axes[r, c]
+            im = ax.imshow(values, origin="lower", extent=extent, cmap=cmap, aspect="equal",
+                           vmin=None if lim is None else lim[0],
+                           vmax=None if lim is None else lim[1])
+            if c == 0:
+                x, y = grid.centres()
+                v = np.where(empty[..., None], np.nan, f["velocity"])
+                ax.quiver(x, y, v[..., 0], v[..., 1], color="white", scale=8, width=0.002)
+            ax.set_title(f"{name}: {title}", fontsize=9)
+            fig.colorbar(im, ax=ax, shrink=0.7, label=title)
+    # shared axes: the tick labels show on the bottom row and the left column only
+    for ax in axes[-1, :]:
+        ax.set_xlabel("x [m]")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("y [m]")
+    plotstyle.title(fig, f"Pile fields at t = {time_s:g} s (the funnel zone drains in the near "
+                    "future)", f"held-out scenario {scenario}, storage models "
+                    f"{' and '.join(rows)}")
+    fig.tight_layout()
+    plotstyle.save(fig, path, dpi=120)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", default="examples/out/rom_data", help="DOE directory")
@@ -195,7 +233,6 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
 
-    from cosim import plotstyle
     from surrogate.rom import evaluate as ev
     from surrogate.rom import metrics
 
@@ -273,36 +310,11 @@ def main(argv=None) -> int:
     plot_ladder(result, out / "speed_vs_accuracy.png")
 
     grid = models[0][1].grid
-    extent = (grid.x_min, grid.x_max, grid.y_min, grid.y_max)
     k = middle
     rows = {"DEM": {"mass": dem["field_mass"][k], "velocity": dem["field_velocity"][k],
                     "grade": dem["field_grade"][k], "hardness": dem["field_hardness"][k]},
-            "ROM": captured}
-    fig, axes = plotstyle.pyplot().subplots(2, 3, figsize=(13, 5.2), sharex=True, sharey=True)
-    for r, (name, f) in enumerate(rows.items()):
-        empty = f["mass"] <= 0
-        speed = np.where(empty, np.nan, np.linalg.norm(f["velocity"], axis=-1))
-        panels = (("speed [m/s]", speed, "viridis", None),
-                  ("grade [-]", np.where(empty, np.nan, f["grade"]), "magma", (0.2, 0.8)),
-                  ("hardness [-]", np.where(empty, np.nan, f["hardness"]), "coolwarm", (1, 2)))
-        for c, (title, values, cmap, lim) in enumerate(panels):
-            ax = axes[r, c]
-            im = ax.imshow(values, origin="lower", extent=extent, cmap=cmap, aspect="equal",
-                           vmin=None if lim is None else lim[0],
-                           vmax=None if lim is None else lim[1])
-            if c == 0:
-                x, y = grid.centres()
-                v = np.where(empty[..., None], np.nan, f["velocity"])
-                ax.quiver(x, y, v[..., 0], v[..., 1], color="white", scale=8, width=0.002)
-            ax.set_title(f"{name}: {title}", fontsize=9)
-            fig.colorbar(im, ax=ax, shrink=0.7, label=title)
-    axes[1, 0].set_xlabel("x [m]")
-    axes[1, 0].set_ylabel("y [m]")
-    plotstyle.title(fig, f"Pile fields at t = {k} s (the funnel zone drains in the near "
-                    "future)", f"held-out scenario {args.scenario}, storage models DEM and "
-                    "ROM (default modes)")
-    fig.tight_layout()
-    plotstyle.save(fig, out / "pile_fields.png", dpi=120)
+            "ROM (default modes)": captured}
+    plot_fields(rows, grid, k, args.scenario, out / "pile_fields.png")
     progress(f"wrote {out / 'speed_vs_accuracy.png'} and {out / 'pile_fields.png'}")
     return 0
 

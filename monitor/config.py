@@ -2,24 +2,30 @@
 
 A TOML file (``minetwin monitor --config FILE``) overrides any of the
 defaults below; the page reads the result from ``/monitor/config``. The
-page raises an alarm while a limit is passed and clears it when the value
-is back inside (no dead band):
+monitor server raises an alarm when a limit is passed and clears it once
+the value is back inside by the dead band (``monitor.alarms``):
 
 ```toml
 [stockpile]
-capacity_t = 2000.0      # storage capacity [t]: fill level = held mass / capacity
+capacity_t = 2000.0        # storage capacity [t]: fill level = held mass / capacity
 [alarms]
-level_high_pct = 90.0    # LEVEL HIGH while the fill level is above this [% of capacity]
-level_low_pct = 10.0     # LEVEL LOW while the fill level is below this [% of capacity]
-grade_low_pct = 25.0     # GRADE LOW while the pile's grade is below this [%]
-grade_high_pct = 75.0    # GRADE HIGH while the pile's grade is above this [%]
+level_high_pct = 90.0      # LEVEL HIGH above this fill level [% of capacity]
+level_low_pct = 10.0       # LEVEL LOW below this fill level [% of capacity]
+level_deadband_pct = 2.0   # a level alarm clears this far back inside [% of capacity]
+grade_low_pct = 25.0       # GRADE LOW below this grade of the pile [%]
+grade_high_pct = 75.0      # GRADE HIGH above this grade of the pile [%]
+grade_deadband_pct = 1.0   # a grade alarm clears this far back inside [percentage points]
+check_interval_s = 1.0     # how often the monitor reads the stockpile for alarms [s, wall]
 [trends]
-window_s = 0.0           # time range the trends open with [s]; 0: the whole run
+window_s = 0.0             # time range the trends open with [s]; 0: the whole run
 ```
 
 The default capacity of 2,000 t is the paper's stockpile ("The stockpile
-holds up to 2,000 tons", section "Integration test"). Bad values raise ``ValidationError`` naming the
-key, e.g. ``alarms.level_high_pct``.
+holds up to 2,000 tons", section "Integration test"). The default dead
+bands are EEMUA 191's starting values (level 2 %, composition 1 % of the
+range; ``monitor.alarms``); a dead band must be smaller than the distance
+between its low and high limits. Bad values raise ``ValidationError`` naming
+the key, e.g. ``alarms.level_high_pct``.
 """
 
 from __future__ import annotations
@@ -32,8 +38,9 @@ from cosim.tomlfile import read_toml
 
 DEFAULTS = {
     "stockpile": {"capacity_t": 2000.0},
-    "alarms": {"level_high_pct": 90.0, "level_low_pct": 10.0,
-               "grade_low_pct": 25.0, "grade_high_pct": 75.0},
+    "alarms": {"level_high_pct": 90.0, "level_low_pct": 10.0, "level_deadband_pct": 2.0,
+               "grade_low_pct": 25.0, "grade_high_pct": 75.0, "grade_deadband_pct": 1.0,
+               "check_interval_s": 1.0},
     "trends": {"window_s": 0.0},
 }
 """Default configuration (units in the key names: t, % and s)."""
@@ -44,6 +51,9 @@ _RANGES = {
     ("alarms", "level_low_pct"): (0.0, 100.0, False),
     ("alarms", "grade_low_pct"): (0.0, 100.0, False),
     ("alarms", "grade_high_pct"): (0.0, 100.0, False),
+    ("alarms", "level_deadband_pct"): (0.0, 100.0, False),
+    ("alarms", "grade_deadband_pct"): (0.0, 100.0, False),
+    ("alarms", "check_interval_s"): (0.0, 60.0, True),
     ("trends", "window_s"): (0.0, 1e7, False),
 }
 """(low, high, low is exclusive) of every key."""
@@ -73,9 +83,15 @@ def load_monitor_config(path=None) -> dict:
                 raise ValidationError(field, allowed, f"got {value!r}")
             config[section][key] = float(value)
     alarms = config["alarms"]
-    for low_key, high_key in (("level_low_pct", "level_high_pct"),
-                              ("grade_low_pct", "grade_high_pct")):
+    for low_key, high_key, band_key in (
+            ("level_low_pct", "level_high_pct", "level_deadband_pct"),
+            ("grade_low_pct", "grade_high_pct", "grade_deadband_pct")):
         if not alarms[low_key] < alarms[high_key]:
             raise ValidationError(f"alarms.{low_key}", f"< alarms.{high_key} "
                                   f"({alarms[high_key]:g})", f"got {alarms[low_key]:g}")
+        # a wider band would clear a high alarm only below the low limit
+        span = alarms[high_key] - alarms[low_key]
+        if not alarms[band_key] < span:
+            raise ValidationError(f"alarms.{band_key}", f"< alarms.{high_key} - "
+                                  f"alarms.{low_key} ({span:g})", f"got {alarms[band_key]:g}")
     return config

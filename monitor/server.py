@@ -22,6 +22,15 @@ config : dict or None
     Capacity and alarm limits (``monitor.config``), served to the page at
     ``/monitor/config``; default ``monitor.config.DEFAULTS``.
 
+Alarms are kept here, not in the page (``monitor.alarms``): every
+``alarms.check_interval_s`` the server reads the stockpile's new
+``/history`` rows and checks each one. ``GET /monitor/alarms`` serves the
+occurrences; ``POST /monitor/alarms/ack`` with ``{"seq": N or "all",
+"operator": NAME}`` acknowledges (400 naming the field for a bad request,
+404 for an unknown seq, 409 for one already acknowledged). The operator's
+name is what the page sends: the monitor has no login, and binds to
+127.0.0.1 unless told otherwise.
+
 The page draws its trends with uPlot (MIT licence,
 ``static/vendor/uPlot.LICENSE``), served from ``/static/vendor/`` like the
 page's own files; ``make monitor-vendor`` copies it there from the version
@@ -38,6 +47,7 @@ import aiohttp
 from aiohttp import web
 
 from cosim.errors import ValidationError
+from monitor.alarms import AlarmBook
 from monitor.config import load_monitor_config
 
 PROXIED_ENDPOINTS = ("health", "totals", "history", "fields", "particles", "feed",
@@ -72,10 +82,40 @@ def create_monitor_app(stockpile_url: str, timeout_s: float = 3.0,
     app = web.Application()
     pages = {name: _asset(name) for name in ("index.html", *STATIC_FILES)}
 
+    book = AlarmBook(config)
+
+    async def check_alarms(session):
+        """Read the stockpile's new history rows and check each; forever."""
+        since = -1e12
+        while True:
+            try:
+                async with session.get(f"{stockpile_url}/totals") as response:
+                    totals = await response.json()
+                if totals["time_s"] < since:  # a new run: check_row sees its clock go back
+                    since = -1e12
+                async with session.get(f"{stockpile_url}/history",
+                                       params={"since": repr(since)}) as response:
+                    rows = (await response.json())["rows"]
+                for row in rows:
+                    book.check_row(row)
+                if rows:
+                    since = rows[-1]["time_s"]
+                book.error = None
+            except (aiohttp.ClientError, asyncio.TimeoutError, ValueError, KeyError) as exc:
+                # the page shows the stockpile as unreachable; alarms stay as they are
+                book.error = f"{type(exc).__name__}: {exc}"
+            await asyncio.sleep(config["alarms"]["check_interval_s"])
+
     async def open_session(app):
         app["session"] = aiohttp.ClientSession(
             timeout=aiohttp.ClientTimeout(total=timeout_s))
+        checker = asyncio.create_task(check_alarms(app["session"]))
         yield
+        checker.cancel()
+        try:
+            await checker
+        except asyncio.CancelledError:
+            pass
         await app["session"].close()
 
     app.cleanup_ctx.append(open_session)
@@ -98,6 +138,28 @@ def create_monitor_app(stockpile_url: str, timeout_s: float = 3.0,
 
     async def own_config(request):
         return web.json_response(config, headers={"Cache-Control": "no-store"})
+
+    async def alarms(request):
+        return web.json_response({**book.summary(), "error": book.error},
+                                 headers={"Cache-Control": "no-store"})
+
+    async def acknowledge(request):
+        try:
+            body = await request.json()
+        except ValueError:
+            body = None
+        if not isinstance(body, dict):
+            return web.json_response({"error": "body: must be a JSON object with seq and "
+                                      "operator", "field": "body"}, status=400)
+        try:
+            acknowledged = book.acknowledge(body.get("seq"), body.get("operator"))
+        except ValidationError as exc:
+            return web.json_response({"error": str(exc), "field": exc.field}, status=400)
+        except LookupError as exc:
+            return web.json_response({"error": str(exc.args[0]), "field": "seq"}, status=404)
+        except ValueError as exc:
+            return web.json_response({"error": str(exc), "field": "seq"}, status=409)
+        return web.json_response({"acknowledged": acknowledged})
 
     async def proxy(request):
         endpoint = request.match_info["endpoint"]
@@ -122,6 +184,8 @@ def create_monitor_app(stockpile_url: str, timeout_s: float = 3.0,
     app.router.add_get("/static/{vendor:vendor}/{name}", static)
     app.router.add_get("/monitor/health", own_health)
     app.router.add_get("/monitor/config", own_config)
+    app.router.add_get("/monitor/alarms", alarms)
+    app.router.add_post("/monitor/alarms/ack", acknowledge)
     app.router.add_get("/api/{endpoint}", proxy)
     return app
 

@@ -38,13 +38,23 @@ def figures():
     plotstyle.SAVE_HOOKS.remove(hook)
 
 
+def _axis_labels(fig):
+    return [label for ax in fig.axes for label in (ax.get_xlabel(), ax.get_ylabel()) if label]
+
+
 def _check(figures, names, run=RUN):
     assert sorted(figures) == sorted(names)
     for name in names:
-        found, title, _ = figures[name]
+        found, title, fig = figures[name]
         assert found == [], (name, found)
         if run is not None:
             assert run in title, (name, title)
+        # one unit per quantity, as in the monitor: grade in %, hardness relative [-]
+        for label in _axis_labels(fig):
+            if "grade" in label.lower():
+                assert "[%]" in label, (name, label)
+            if "hardness" in label.lower():
+                assert "[-]" in label, (name, label)
 
 
 def _series(t, **columns):
@@ -133,7 +143,9 @@ def test_integration_figures_show_every_source(figures, tmp_path):
 
     rows = [{"time_s": float(k), "held_mass_kg": 1e3 * k, "grade": 0.2} for k in range(10)]
     log = [{"time_s": float(k), "by_source": {"0": 500.0}} for k in range(5, 10)]
-    ledger = {"outflow_log": log, "delivered_by_source": {"0": 5e3, "1": 3e3}, "time_s": 10.0}
+    # bins 1 and 2 of source 0 and bin 3 of source 1 entered; only source 0's ore has left
+    ledger = {"outflow_log": log, "source_of": {"1": 0, "2": 0, "3": 1},
+              "delivered_by_source": {"0": 1e3}, "time_s": 10.0}
     _plots(tmp_path, ledger, {"history": rows, "model": "fifo"})
     _check(figures, ["stockpile_mass_grade.png", "cv301_composition.png"],
            run="storage model fifo")
@@ -247,4 +259,13 @@ def test_example_figures(figures, tmp_path):
     ladder.plot_ladder({"points": points, "dem_noise_floor": 0.04,
                         "reference_wall_s_per_simulated_s": 20.0, "reference_dt_factor": 1.0,
                         "scenario": doe.HELDOUT_SCENARIOS[0].name}, tmp_path / "ladder.png")
-    _check(figures, ["stability.png", "ladder.png"], run=None)
+    from surrogate.rom.grid import Grid
+
+    grid = Grid(x_min=-2.0, x_max=2.0, y_min=0.0, y_max=2.0, nx=8, ny=4)
+    rng = np.random.default_rng(2)
+    fields = {"mass": rng.uniform(0, 1, (4, 8)), "velocity": rng.normal(0, 0.1, (4, 8, 2)),
+              "grade": rng.uniform(0, 1, (4, 8)), "hardness": rng.uniform(1, 2, (4, 8))}
+    ladder.plot_fields({"DEM": fields, "ROM (default modes)": fields}, grid, 30.0,
+                       "heldout", tmp_path / "pile_fields.png")
+    _check(figures, ["stability.png", "ladder.png", "pile_fields.png"], run=None)
+    assert "storage models DEM and ROM (default modes)" in figures["pile_fields.png"][1]

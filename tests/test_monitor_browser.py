@@ -11,6 +11,7 @@ serving. Screenshots go to the test's tmp dir (and to
 
 from __future__ import annotations
 
+import datetime
 import json
 import os
 import re
@@ -228,6 +229,19 @@ def test_monitor_page_against_a_running_stockpile(processes, tmp_path):
                 f"its clock went back from t = {restarts[0]['from_s']:.1f} s to "
                 f"{restarts[0]['to_s']:.1f} s")
             page.screenshot(path=str(shots[2]), full_page=True)
+            # the monitor server saw the clock go back too: the old run's LEVEL LOW (a few
+            # t of the default 2000 t) cleared by the restart, and the new run raised its own
+            deadline = time.monotonic() + 10
+            while True:
+                alarms = get(monitor_url + "monitor/alarms")[1]["alarms"]
+                low = [o for o in alarms if o["id"] == "level_low"]
+                if len(low) == 2 or time.monotonic() > deadline:
+                    break
+                time.sleep(0.2)
+            assert [(o["state"], o["cleared_by"]) for o in low] == \
+                [("CLEARED_UNACK", "restart"), ("ACTIVE_UNACK", None)]
+            # both at the new run's first row: the old one clears as the new one is raised
+            assert low[0]["cleared_s"] == low[1]["raised_s"] < last_time
 
             assert running["monitor"].poll() is None
             assert all(url.startswith(monitor_url) or url.startswith("data:")
@@ -313,13 +327,14 @@ def test_monitor_command_fails_on_a_busy_port():
 # ------------------------------------------------------- the operator's screen
 CAPACITY_T = 50.0
 LEVEL_HIGH_PCT = 60.0
+LEVEL_DEADBAND_PCT = 4.0
 
 
 @pytest.fixture
 def driven_stockpile(tmp_path):
     """A stockpile asset served on 127.0.0.1 whose bins, feeder and steps the
     test drives, and the monitor (its own process) configured with a 50 t
-    capacity and a 60 % high-level alarm."""
+    capacity and a 60 % high-level alarm that clears at 56 % (4 % dead band)."""
     _ensure_chromium()
     from surrogate.rest import serve_in_thread
     from surrogate.stockpile import StockpileAsset
@@ -329,6 +344,7 @@ def driven_stockpile(tmp_path):
     config = tmp_path / "monitor.toml"
     config.write_text(f"[stockpile]\ncapacity_t = {CAPACITY_T}\n[alarms]\n"
                       f"level_high_pct = {LEVEL_HIGH_PCT}\nlevel_low_pct = 0.0\n"
+                      f"level_deadband_pct = {LEVEL_DEADBAND_PCT}\ncheck_interval_s = 0.2\n"
                       "grade_low_pct = 0.0\ngrade_high_pct = 100.0\n")
     stockpile_url = f"http://127.0.0.1:{rest.port}"
     monitor = None
@@ -345,7 +361,8 @@ def driven_stockpile(tmp_path):
 
 def _drive(page, asset, rest, bins=(), rate=0.0, steps=0):
     """Deliver ``bins`` (tracking id, mass [kg], grade, source), run the feeder at
-    ``rate`` [kg/s] for ``steps`` steps of 1 s, and wait until the page shows that time."""
+    ``rate`` [kg/s] for ``steps`` steps of 1 s, and wait until the page shows that time
+    (and the monitor's alarms checked up to it)."""
     with rest.lock:
         for tracking_id, mass, grade, source in bins:
             asset.receive_bin(tracking_id, mass, grade, 1.0 + grade, source=source)
@@ -356,7 +373,8 @@ def _drive(page, asset, rest, bins=(), rate=0.0, steps=0):
     page.wait_for_function(
         f"window.monitorState.history.length > 0 && "
         f"window.monitorState.history[window.monitorState.history.length - 1].time_s === {time_s}"
-        f" && window.monitorState.lastSeq === {asset.lots.last_seq}", timeout=10_000)
+        f" && window.monitorState.lastSeq === {asset.lots.last_seq}"
+        f" && window.monitorState.alarmsChecked === {time_s}", timeout=10_000)
     # one more poll, so that every element drawn shows the same state
     updates = page.evaluate("window.monitorState.updates")
     page.wait_for_function(f"window.monitorState.updates > {updates}", timeout=10_000)
@@ -422,15 +440,19 @@ def test_monitor_operator_screen(driven_stockpile, tmp_path):
             _drive(page, asset, rest, [(13, 10_000.0, 0.4, 0), (14, 10_000.0, 0.6, 1)],
                    rate=500.0, steps=1)
             high = page.locator("#alarm-list tr[data-alarm='level_high']")
-            sync_api.expect(high).to_have_attribute("data-state", "ACTIVE")
-            assert _shown(page, "alarm-count") == ["1", "1 ALARM"]
+            sync_api.expect(high).to_have_attribute("data-state", "ACTIVE_UNACK")
+            assert _shown(page, "alarm-count") == ["1", "1 ALARM (1 UNACK)"]
             raised_at = asset.time
-            # the feeder at 2000 kg/s for 4 s: 29.5 t, 59 % of capacity, the alarm clears
-            cleared_at = _drive(page, asset, rest, rate=2000.0, steps=4)
+            # the feeder at 2000 kg/s for 4 s: 29.5 t, 59 % of capacity, below the limit
+            # but inside the dead band: still the one alarm
+            _drive(page, asset, rest, rate=2000.0, steps=4)
             assert asset.totals()["held_mass_kg"] == pytest.approx(29_500.0)
-            sync_api.expect(high).to_have_attribute("data-state", "CLEARED")
+            assert high.get_attribute("data-state") == "ACTIVE_UNACK"
+            # one second more: 27.5 t, 55 %, past the 56 % where it clears
+            cleared_at = _drive(page, asset, rest, rate=2000.0, steps=1)
+            sync_api.expect(high).to_have_attribute("data-state", "CLEARED_UNACK")
             assert high.count() == 1
-            assert _shown(page, "alarm-count")[0] == "0"
+            assert _shown(page, "alarm-count") == ["0", "NO ALARM (1 UNACK)"]
             alarm = page.evaluate("window.monitorState.alarms")[0]
             assert (alarm["raised_s"], alarm["cleared_s"]) == (raised_at, cleared_at)
             assert alarm["value"] == pytest.approx(75.0)
@@ -455,21 +477,20 @@ def test_monitor_operator_screen(driven_stockpile, tmp_path):
             assert page.locator("#zoom-reset").is_enabled()
             page.screenshot(path=str(tmp_path / "monitor_operator.png"), full_page=True)
 
-            # the CSV export is /history
+            # unzoomed, the trends show the whole run, and the CSV export is /history
+            page.click("#zoom-reset")
+            assert page.evaluate("window.monitorState.zoom") is None
             with page.expect_download() as download:
                 page.click("#export-csv")
             exported = download.value.path().read_text().splitlines()
             history = get(stockpile_url + "/history")[1]["rows"]
             header = exported[0].split(",")
             assert header == list(history[0])
-            assert len(exported) - 1 == len(history) == 4 + 1 + 4 + 6  # one row per step
+            assert len(exported) - 1 == len(history) == 4 + 1 + 4 + 1 + 6  # one row per step
             for line, row in zip(exported[1:], history):
                 values = line.split(",")
                 assert [None if v == "" else float(v) for v in values] == \
                     [None if row[k] is None else float(row[k]) for k in header]
-
-            page.click("#zoom-reset")
-            assert page.evaluate("window.monitorState.zoom") is None
             assert errors == []
         finally:
             browser.close()
@@ -477,3 +498,245 @@ def test_monitor_operator_screen(driven_stockpile, tmp_path):
     if copy_to:
         Path(copy_to).mkdir(parents=True, exist_ok=True)
         shutil.copy(tmp_path / "monitor_operator.png", Path(copy_to) / "monitor_operator.png")
+
+
+def _x_scales(page):
+    return page.evaluate("""() => Object.values(window.monitorState.charts)
+        .map((u) => [u.scales.x.min, u.scales.x.max])""")
+
+
+def _export(page):
+    """The CSV the export button downloads: (file name, header, rows as floats or None)."""
+    with page.expect_download() as download:
+        page.click("#export-csv")
+    lines = download.value.path().read_text().splitlines()
+    header = lines[0].split(",")
+    rows = [[None if v == "" else float(v) for v in line.split(",")] for line in lines[1:]]
+    return download.value.suggested_filename, header, rows
+
+
+def _rows(history, header, low, high):
+    return [[None if row[k] is None else float(row[k]) for k in header]
+            for row in history if low <= row["time_s"] <= high]
+
+
+def test_monitor_time_range_selection(driven_stockpile):
+    """A time range chosen in the list: every trend shows it, each y axis
+    scales to the values inside it, it follows new data, a zoom inside it
+    narrows it, and the CSV export holds the /history rows of what is shown."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    asset, rest, stockpile_url, monitor_url = driven_stockpile
+    with sync_api.sync_playwright() as playwright:
+        browser = _launch(playwright)
+        try:
+            page = browser.new_page(viewport={"width": 1600, "height": 1000},
+                                    accept_downloads=True)
+            errors = []
+            page.on("pageerror", lambda error: errors.append(str(error)))
+            page.goto(monitor_url + "?poll=250")
+            sync_api.expect(page.locator("#status")).to_have_text("LIVE", timeout=15_000)
+            # 40 t in; 40 s at 500 kg/s down to 20 t, then 50 s with the feeder stopped:
+            # the last minute (30-90 s) holds at most 25 t, the whole run 39.5 t
+            lots = [(k, 10_000.0, 0.5, 0) for k in range(4)]
+            _drive(page, asset, rest, lots, rate=500.0, steps=40)
+            end = _drive(page, asset, rest, rate=0.0, steps=50)
+            history = get(stockpile_url + "/history")[1]["rows"]
+            assert (history[0]["time_s"], end) == (1.0, 90.0)
+            whole = [[1.0, 90.0]] * 6
+            assert _x_scales(page) == whole
+
+            page.select_option("#trend-range", "60")
+            assert _x_scales(page) == [[30.0, 90.0]] * 6
+            assert page.locator("#range-shown").text_content() == "t = 30.0–90.0 s"
+            shown_max = max(r["held_mass_kg"] for r in history if r["time_s"] >= 30.0) / 1000
+            whole_max = max(r["held_mass_kg"] for r in history) / 1000
+            assert (shown_max, whole_max) == (25.0, 39.5)
+            y_max = page.evaluate("window.monitorState.charts.mass.scales.y.max")
+            assert y_max == pytest.approx(1.1 * shown_max)
+            name, header, rows = _export(page)
+            assert header == list(history[0])
+            assert rows == _rows(history, header, 30.0, 90.0) and len(rows) == 61
+            assert name == "stockpile_history_t30-90s.csv"
+
+            # ten seconds more: the window moves with the newest value
+            _drive(page, asset, rest, rate=0.0, steps=10)
+            assert _x_scales(page) == [[40.0, 100.0]] * 6
+            history = get(stockpile_url + "/history")[1]["rows"]
+            assert _export(page)[2] == _rows(history, header, 40.0, 100.0)
+
+            # a zoom inside the window narrows every trend and the export to it
+            over = page.locator("#trend-grade .u-over").bounding_box()
+            y = over["y"] + over["height"] / 2
+            page.mouse.move(over["x"] + 0.2 * over["width"], y)
+            page.mouse.down()
+            page.mouse.move(over["x"] + 0.5 * over["width"], y, steps=8)
+            page.mouse.up()
+            zoom = page.evaluate("window.monitorState.zoom")
+            assert 40.0 < zoom["min"] < zoom["max"] < 100.0
+            assert _x_scales(page) == [[zoom["min"], zoom["max"]]] * 6
+            zoomed = _export(page)[2]
+            assert zoomed == _rows(history, header, zoom["min"], zoom["max"])
+            assert 0 < len(zoomed) < 61
+
+            # choosing a range again replaces the zoom: the whole run, all of /history
+            page.select_option("#trend-range", "0")
+            assert page.evaluate("window.monitorState.zoom") is None
+            assert _x_scales(page) == [[1.0, 100.0]] * 6
+            y_max = page.evaluate("window.monitorState.charts.mass.scales.y.max")
+            assert y_max == pytest.approx(1.1 * whole_max)
+            assert _export(page)[2] == _rows(history, header, 1.0, 100.0)
+
+            # hovering shows the values of the row under the cursor, in the trend's unit
+            over = page.locator("#trend-mass .u-over").bounding_box()
+            page.mouse.move(over["x"] + 0.3 * over["width"], over["y"] + over["height"] / 2)
+            page.wait_for_function("window.monitorState.charts.mass.cursor.idx !== null")
+            index, shown = page.evaluate("""() => {
+                const u = window.monitorState.charts.mass;
+                return [u.cursor.idx, [...u.root.querySelectorAll('.u-legend .u-value')]
+                        .map((el) => el.textContent)]; }""")
+            row = page.evaluate(f"window.monitorState.history[{index}]")
+            assert row == history[index]
+            assert shown[:2] == [f"{row['time_s']:.1f}", f"{row['held_mass_kg'] / 1000:.2f}"]
+            assert 0.2 < (row["time_s"] - 1.0) / 99.0 < 0.4
+            assert errors == []
+        finally:
+            browser.close()
+
+
+def _post(url, body):
+    request = urllib.request.Request(url, data=json.dumps(body).encode(), method="POST",
+                                     headers={"Content-Type": "application/json"})
+    try:
+        with urllib.request.urlopen(request, timeout=10) as response:
+            return response.status, json.loads(response.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read())
+
+
+def test_monitor_alarm_acknowledgement_survives_a_reload(driven_stockpile, tmp_path):
+    """The operator acknowledges an alarm with a name; the monitor server keeps
+    who and when, so a reloaded page shows it; an alarm that clears before
+    anyone acknowledged it waits as CLEARED, UNACK."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    expect = sync_api.expect
+    asset, rest, stockpile_url, monitor_url = driven_stockpile
+    with sync_api.sync_playwright() as playwright:
+        browser = _launch(playwright)
+        try:
+            page = browser.new_page(viewport={"width": 1600, "height": 1000})
+            errors = []
+            page.on("pageerror", lambda error: errors.append(str(error)))
+            page.goto(monitor_url + "?poll=250")
+            expect(page.locator("#status")).to_have_text("LIVE", timeout=15_000)
+            # 35 t: 70 % of 50 t, above the 60 % limit
+            _drive(page, asset, rest, [(1, 35_000.0, 0.5, 0)], steps=1)
+            row = page.locator("#alarm-list tr[data-seq='1']")
+            expect(row).to_have_attribute("data-state", "ACTIVE_UNACK")
+            # no name, no acknowledgement
+            row.locator("button.ack").click()
+            expect(page.locator("#ack-note")).to_contain_text("type your name")
+            assert get(monitor_url + "monitor/alarms")[1]["alarms"][0]["acked_by"] is None
+
+            page.fill("#operator", "Ana Operator")
+            row.locator("button.ack").click()
+            expect(row).to_have_attribute("data-state", "ACTIVE_ACK")
+            served = get(monitor_url + "monitor/alarms")[1]
+            occurrence = served["alarms"][0]
+            assert (occurrence["acked_by"], occurrence["acked_s"]) == ("Ana Operator", 1.0)
+            acked_clock = time.strftime("%H:%M:%S", time.localtime(
+                datetime.datetime.fromisoformat(occurrence["acked_at"].replace("Z", "+00:00"))
+                .timestamp()))
+            expect(row.locator("td").nth(6)).to_have_text(f"Ana Operator, {acked_clock}")
+            assert served["limits"][0]["clears_at"] == LEVEL_HIGH_PCT - LEVEL_DEADBAND_PCT
+
+            # the server refuses a second acknowledgement, a bad name and an unknown alarm
+            status, body = _post(monitor_url + "monitor/alarms/ack", {"seq": 1, "operator": "Ben"})
+            assert status == 409 and "acknowledged by 'Ana Operator'" in body["error"]
+            status, body = _post(monitor_url + "monitor/alarms/ack", {"seq": 1, "operator": ""})
+            assert status == 400 and body["field"] == "operator"
+            status, body = _post(monitor_url + "monitor/alarms/ack", {"seq": 7, "operator": "Ben"})
+            assert status == 404 and body["field"] == "seq"
+
+            # a reload shows what the server kept, and the browser remembers the name
+            page.reload()
+            expect(page.locator("#status")).to_have_text("LIVE", timeout=15_000)
+            expect(row).to_have_attribute("data-state", "ACTIVE_ACK")
+            expect(row.locator("td").nth(6)).to_have_text(f"Ana Operator, {acked_clock}")
+            assert page.input_value("#operator") == "Ana Operator"
+
+            # 25 t (50 %): acknowledged and cleared, the occurrence is closed
+            _drive(page, asset, rest, rate=2_000.0, steps=5)
+            expect(row).to_have_attribute("data-state", "CLEARED")
+            # up to 40 t and down to 24 t before anyone looks: it waits, unacknowledged
+            _drive(page, asset, rest, [(2, 15_000.0, 0.5, 0)], rate=0.0, steps=1)
+            _drive(page, asset, rest, rate=2_000.0, steps=8)
+            second = page.locator("#alarm-list tr[data-seq='2']")
+            expect(second).to_have_attribute("data-state", "CLEARED_UNACK")
+            assert _shown(page, "alarm-count") == ["0", "NO ALARM (1 UNACK)"]
+            page.reload()
+            expect(second).to_have_attribute("data-state", "CLEARED_UNACK", timeout=15_000)
+            page.screenshot(path=str(tmp_path / "monitor_alarms.png"), full_page=True)
+            page.click("#ack-all")
+            expect(second).to_have_attribute("data-state", "CLEARED")
+            assert _shown(page, "alarm-count") == ["0", "NO ALARM"]
+            served = get(monitor_url + "monitor/alarms")[1]
+            assert [(o["seq"], o["state"], o["acked_by"]) for o in served["alarms"]] == \
+                [(1, "CLEARED", "Ana Operator"), (2, "CLEARED", "Ana Operator")]
+            assert served["unacknowledged"] == 0
+            assert errors == []
+        finally:
+            browser.close()
+
+
+SCREENS = {"laptop_1366x768": {"viewport": {"width": 1366, "height": 768}},
+           "phone_390x844": {"viewport": {"width": 390, "height": 844}, "is_mobile": True,
+                             "has_touch": True, "device_scale_factor": 2}}
+"""A common laptop screen and a phone's width (CSS pixels)."""
+
+VISIBLE_IDS = ("status", "alarm-count", "sim-time", "held-mass", "fill-pct", "grade", "hardness",
+               "d80", "discharge-actual", "discharge-rate", "trend-range", "export-csv",
+               "operator", "ack-all", "colour-by")
+
+
+@pytest.mark.slow  # 23 s here: two pages, full-page screenshots at a phone's pixel ratio
+def test_monitor_fits_a_laptop_and_a_phone(processes, tmp_path):
+    """At 1366 x 768 and at a phone's 390 px the page does not scroll sideways,
+    every value and control lies inside the screen's width, and each trend
+    fits its panel. Screenshots: monitor_<screen>.png."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    _, _, monitor_url = processes
+    shots = []
+    with sync_api.sync_playwright() as playwright:
+        browser = _launch(playwright)
+        try:
+            for name, options in SCREENS.items():
+                page = browser.new_page(**options)
+                width = options["viewport"]["width"]
+                page.goto(monitor_url + "?poll=400")
+                sync_api.expect(page.locator("#status")).to_have_text("LIVE", timeout=15_000)
+                page.wait_for_function("window.monitorState.updates >= 3", timeout=15_000)
+                assert page.evaluate("document.documentElement.scrollWidth") <= width, name
+                for element_id in VISIBLE_IDS:
+                    box = page.locator(f"#{element_id}").bounding_box()
+                    assert box is not None and box["width"] > 0, (name, element_id)
+                    assert 0 <= box["x"] and box["x"] + box["width"] <= width, (name, element_id, box)
+                # the state of the plant is on the first screen
+                for element_id in ("status", "alarm-count", "sim-time"):
+                    box = page.locator(f"#{element_id}").bounding_box()
+                    assert box["y"] + box["height"] <= options["viewport"]["height"], (name, element_id)
+                trends = page.evaluate("""() => [...document.querySelectorAll('.trend')].map(
+                    (t) => [t.getBoundingClientRect().right, t.querySelector('.uplot')
+                            .getBoundingClientRect().right, t.parentElement.getBoundingClientRect().right])""")
+                assert len(trends) == 6
+                for box_right, chart_right, grid_right in trends:
+                    assert chart_right <= box_right + 1 and box_right <= grid_right + 1, (name, trends)
+                shots.append(tmp_path / f"monitor_{name}.png")
+                page.screenshot(path=str(shots[-1]), full_page=True)
+                page.close()
+        finally:
+            browser.close()
+    copy_to = os.environ.get("MINETWIN_SCREENSHOT_DIR")
+    if copy_to:
+        Path(copy_to).mkdir(parents=True, exist_ok=True)
+        for shot in shots:
+            shutil.copy(shot, Path(copy_to) / shot.name)

@@ -34,6 +34,9 @@ def test_defaults_and_overrides(tmp_path):
     ("[alarms]\nsiren = true\n", "alarms.siren"),
     ("[screen]\nwidth = 3\n", "screen"),
     ("[trends]\nwindow_s = -1\n", "trends.window_s"),
+    ("[alarms]\nlevel_deadband_pct = 80\n", "alarms.level_deadband_pct"),  # = 90 - 10
+    ("[alarms]\ngrade_deadband_pct = -1\n", "alarms.grade_deadband_pct"),
+    ("[alarms]\ncheck_interval_s = 0\n", "alarms.check_interval_s"),
 ])
 def test_bad_values_name_the_key(tmp_path, text, field):
     path = tmp_path / "monitor.toml"

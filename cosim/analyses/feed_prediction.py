@@ -234,7 +234,9 @@ def plot(curves: dict, snapshots: dict, out, run: str | None = None) -> list:
 
     plt = plotstyle.pyplot()
     out = Path(out)
-    units = {"speed": "speed [m/s]", "grade": "grade [-]", "hardness": "hardness [-]"}
+    # grade in % like the monitor and every other figure; the data are fractions [-]
+    units = {"speed": "speed [m/s]", "grade": "grade [%]", "hardness": "hardness [-]"}
+    shown = {"speed": 1.0, "grade": 100.0, "hardness": 1.0}
     paths = []
     names = list(curves)
     fig, axes = plt.subplots(len(names), 3, figsize=(12, 3.2 * len(names)), squeeze=False)
@@ -246,7 +248,8 @@ def plot(curves: dict, snapshots: dict, out, run: str | None = None) -> list:
                 ax.set_axis_off()
                 continue
             if spatial:
-                points = ax.scatter(snap["x"], snap["y"], c=snap[column], s=4, cmap="viridis")
+                points = ax.scatter(snap["x"], snap["y"], c=snap[column] * shown[column], s=4,
+                                    cmap="viridis")
                 ax.set_xlabel("x [m]")
                 ax.set_ylabel("y [m]")
                 ax.set_aspect("equal")
@@ -261,7 +264,7 @@ def plot(curves: dict, snapshots: dict, out, run: str | None = None) -> list:
                 ax.set_ylabel("held mass [t]")
                 title = "mass by time to leave"
             else:
-                ax.scatter(snap["time_to_leave_s"], snap[column], s=4)
+                ax.scatter(snap["time_to_leave_s"], snap[column] * shown[column], s=4)
                 ax.set_ylabel(units[column])
                 title = column
             ax.set_xlabel("expected time to leave [s]")
@@ -275,22 +278,25 @@ def plot(curves: dict, snapshots: dict, out, run: str | None = None) -> list:
     for (left, right), name in zip(axes, names):
         c = curves[name]
         averages = c["averages"]
-        left.plot(averages["time"], averages["grade"], label="grade")
-        left.plot(averages["time"], averages["hardness"], label="hardness")
-        left.set_title(f"{name}: storage averages", fontsize=9)
+        left.plot(averages["time"], averages["grade"] * 100, label="grade")
+        twin = left.twinx()
+        twin.plot(averages["time"], averages["hardness"], color="tab:orange",
+                  label="hardness (right axis)")
+        left.set_title(f"{name}: storage averages (mass-weighted)", fontsize=9)
         left.set_xlabel("time [s]")
-        left.set_ylabel("mass-weighted average [-]")
-        left.legend(fontsize=8)
+        left.set_ylabel("grade [%]")
+        twin.set_ylabel("hardness [-]")
+        plotstyle.legend(left, twin, fontsize=8)
         out_ma, pred, real = c["outflow"], c["predicted"], c["realised"]
-        right.plot(out_ma["time"], out_ma["grade"], color="tab:orange", lw=0.8,
+        right.plot(out_ma["time"], out_ma["grade"] * 100, color="tab:orange", lw=0.8,
                    label=f"outflow grade ({OUTFLOW_WINDOW_S:g} s moving average)")
-        right.plot(pred["time"], pred["grade"], color="tab:blue", lw=1.0,
+        right.plot(pred["time"], pred["grade"] * 100, color="tab:blue", lw=1.0,
                    label=f"predicted grade of the next {HORIZON_S:g} s")
-        right.plot(real["time"], real["grade"], color="k", lw=0.8, ls="--",
+        right.plot(real["time"], real["grade"] * 100, color="k", lw=0.8, ls="--",
                    label=f"realised grade of the next {HORIZON_S:g} s")
         right.set_title(f"{name}: feed prediction", fontsize=9)
         right.set_xlabel("time [s]")
-        right.set_ylabel("grade [-]")
+        right.set_ylabel("grade [%]")
         right.legend(fontsize=7)
     plotstyle.title(fig, "Storage evolution and outflow per storage model", run)
     fig.tight_layout()

@@ -218,8 +218,9 @@ def _plots(out: Path, ledger: dict, summary: dict) -> list[str]:
     first = plotstyle.save(fig, out / "stockpile_mass_grade.png", dpi=100)
 
     log = ledger["outflow_log"]
-    # every source delivered, also one none of whose ore has left yet
-    sources = sorted({*ledger.get("delivered_by_source", {}),
+    # every source whose ore entered the stockpile, also one none of whose ore has left
+    # yet (delivered_by_source counts only ore that has reached the end of CV301)
+    sources = sorted({*(str(s) for s in ledger.get("source_of", {}).values()),
                       *(s for row in log for s in row["by_source"])}, key=int)
     times = np.array([row["time_s"] for row in log])
     fig, ax = plt.subplots(figsize=(8, 4.5))

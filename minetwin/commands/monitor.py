@@ -8,8 +8,9 @@ def register(subparsers) -> None:
         "monitor", help="serve the stockpile monitor web page",
         description="Serve the monitoring web page for a stockpile's REST interface (paper "
                     "section 'Integration test'): pile coloured by grade, hardness, residence "
-                    "time or origin, velocity arrows, totals, time series and the predicted "
-                    "feed. The page reads the stockpile through this server and shows "
+                    "time or origin, velocity arrows, totals, time series, the predicted "
+                    "feed, and alarms with a dead band that an operator acknowledges (kept "
+                    "by this server: GET /monitor/alarms, POST /monitor/alarms/ack). The page reads the stockpile through this server and shows "
                     "'stockpile unreachable' while it is down. Runs until interrupted.")
     parser.add_argument("--stockpile", required=True, metavar="URL",
                         help="base URL of the stockpile REST interface, e.g. "
@@ -19,9 +20,9 @@ def register(subparsers) -> None:
     parser.add_argument("--host", default="127.0.0.1",
                         help="address to bind (127.0.0.1)")
     parser.add_argument("--config", metavar="FILE",
-                        help="TOML with the stockpile capacity and alarm limits (see "
-                             "monitor/config.py; default capacity 2000 t, level 10-90 %%, "
-                             "grade 25-75 %%)")
+                        help="TOML with the stockpile capacity, alarm limits and dead "
+                             "bands (see monitor/config.py; default capacity 2000 t, level "
+                             "10-90 %% with a 2 %% dead band, grade 25-75 %% with 1 point)")
     parser.set_defaults(handler=run)
 
 

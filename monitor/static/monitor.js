@@ -20,7 +20,7 @@ const STALE_MS = 5000;        // a value older than this is marked
 const state = window.monitorState = {
   updates: 0, reachable: null, colourBy: "grade", lastTime: null, config: null,
   history: [], particles: null, fields: null, feed: null, totals: null,
-  events: [], lastSeq: 0, alarms: [], active: {}, restarts: [], zoom: null,
+  events: [], lastSeq: 0, alarms: [], alarmsShown: null, restarts: [], zoom: null,
   received: {}, charts: {}, scheme: null, originNames: new Map(),
 };
 
@@ -54,11 +54,12 @@ async function fetchAll() {
     api("feed?horizon=" + FEED_HORIZON_S),
     api("events?since=" + state.lastSeq),
   ]);
-  return {totals, history, particles, fields, feed, events};
+  const alarms = await getJSON("/monitor/alarms");
+  return {totals, history, particles, fields, feed, events, alarms};
 }
 
-// The stockpile's clock went back: a new run. Say so, and start the trends,
-// events and alarms afresh (what was shown belongs to the old run).
+// The stockpile's clock went back: a new run. Say so, and start the trends
+// and events afresh (what was shown belongs to the old run).
 function restarted(fromS, toS) {
   const at = new Date();
   state.restarts.push({from_s: fromS, to_s: toS, at: at.toISOString()});
@@ -66,10 +67,10 @@ function restarted(fromS, toS) {
   state.events = [];
   state.lastSeq = 0;
   state.zoom = null;
-  for (const id of Object.keys(state.active)) clearAlarm(id, null);
+  state.originNames = new Map();
   $("restart-detail").textContent =
     `its clock went back from t = ${fromS.toFixed(1)} s to ${toS.toFixed(1)} s at ${clock(at)}; ` +
-    "trends, events and alarms start again with the new run.";
+    "trends and events start again with the new run; the old run's active alarms are cleared.";
   $("restart-banner").hidden = false;
 }
 
@@ -93,13 +94,14 @@ async function poll() {
     Object.assign(state, {particles: data.particles, fields: data.fields, feed: data.feed,
                           totals: data.totals, lastTime: data.totals.time_s});
     for (const source of ["totals", "particles", "feed", "events"]) state.received[source] = now;
-    state.originNames = new Map((data.particles.origin_names || []).map((o) => [o.origin, o.name]));
+    // names are kept once seen: the events name sources whose particles have all left
+    for (const o of data.particles.origin_names || []) state.originNames.set(o.origin, o.name);
     state.updates += 1;
     showReachable(true);
     // a drawing fault is a page bug, not an unreachable stockpile: report it
     try {
       showTotals(data.totals);
-      checkAlarms(data.totals);
+      showAlarms(data.alarms);
       drawPile();
       showFeed(data.feed);
       drawTrends();
@@ -138,8 +140,9 @@ function showConfig(config) {
   $("capacity").textContent = String(config.stockpile.capacity_t);
   $("grade-band").textContent = `${a.grade_low_pct}–${a.grade_high_pct}`;
   $("alarm-limits").textContent = `(from the monitor's config: level ${a.level_low_pct}–` +
-    `${a.level_high_pct} % of ${config.stockpile.capacity_t} t, grade ${a.grade_low_pct}–` +
-    `${a.grade_high_pct} %)`;
+    `${a.level_high_pct} % of ${config.stockpile.capacity_t} t, dead band ` +
+    `${a.level_deadband_pct} %; grade ${a.grade_low_pct}–${a.grade_high_pct} %, dead band ` +
+    `${a.grade_deadband_pct} percentage points)`;
   $("trend-range").value = String(config.trends.window_s);
   if ($("trend-range").value === "") {  // a window not in the list: add it
     const option = new Option(`last ${config.trends.window_s} s`, String(config.trends.window_s));
@@ -199,65 +202,74 @@ function showAges() {
 }
 
 // ------------------------------------------------------------------- alarms
-// Raised while a limit of the monitor's config is passed, cleared when the
-// value is back inside (no dead band). Grade alarms wait while the pile is empty.
-const ALARMS = [
-  {id: "level_high", name: "LEVEL HIGH", unit: "% of capacity",
-   value: (t) => fillPercent(t), limit: (a) => a.level_high_pct, passed: (v, l) => v > l, sign: ">"},
-  {id: "level_low", name: "LEVEL LOW", unit: "% of capacity",
-   value: (t) => fillPercent(t), limit: (a) => a.level_low_pct, passed: (v, l) => v < l, sign: "<"},
-  {id: "grade_high", name: "GRADE HIGH", unit: "%",
-   value: (t) => t.grade === null ? null : 100 * t.grade, limit: (a) => a.grade_high_pct,
-   passed: (v, l) => v > l, sign: ">"},
-  {id: "grade_low", name: "GRADE LOW", unit: "%",
-   value: (t) => t.grade === null ? null : 100 * t.grade, limit: (a) => a.grade_low_pct,
-   passed: (v, l) => v < l, sign: "<"},
-];
+// The monitor server keeps the alarms (monitor/alarms.py: limits with a dead
+// band, checked on every history row; acknowledgements with who and when), so
+// they are the same after a reload and in every browser. The page shows them
+// and sends the operator's acknowledgements.
+const STATE_TEXT = {ACTIVE_UNACK: "ACTIVE, UNACK", ACTIVE_ACK: "ACTIVE, ACK",
+                    CLEARED_UNACK: "CLEARED, UNACK", CLEARED: "CLEARED"};
 
-function checkAlarms(totals) {
-  const limits = state.config.alarms;
-  for (const alarm of ALARMS) {
-    const value = alarm.value(totals);
-    if (value === null || !Number.isFinite(value)) continue;
-    const limit = alarm.limit(limits);
-    const passed = alarm.passed(value, limit);
-    if (passed && !state.active[alarm.id]) {
-      const entry = {id: alarm.id, name: alarm.name, state: "ACTIVE", value, unit: alarm.unit,
-                     limit: `${alarm.sign} ${limit} ${alarm.unit}`,
-                     raised_s: totals.time_s, raised_at: new Date(), cleared_s: null, cleared_at: null};
-      state.alarms.push(entry);
-      state.active[alarm.id] = entry;
-    } else if (!passed && state.active[alarm.id]) {
-      clearAlarm(alarm.id, totals.time_s);
-    }
-  }
-  state.alarms = state.alarms.slice(-ALARMS_SHOWN);
-  showAlarms();
+function limitText(a) {
+  return `${a.direction === "high" ? ">" : "<"} ${a.limit} ${a.unit}; clears ` +
+         `${a.direction === "high" ? "≤" : "≥"} ${a.clears_at} ${a.unit}`;
 }
 
-function clearAlarm(id, timeS) {
-  const entry = state.active[id];
-  Object.assign(entry, {state: "CLEARED", cleared_s: timeS, cleared_at: new Date()});
-  delete state.active[id];
+function wallClock(iso) {
+  return iso ? clock(new Date(iso)) : "–";
 }
 
-function showAlarms() {
-  const active = Object.keys(state.active).length;
+function showAlarms(book) {
+  state.alarms = book.alarms;
+  state.alarmsChecked = book.checked_s;
   const badge = $("alarm-count");
-  badge.className = "status " + (active ? "alarm" : "waiting");
-  badge.textContent = active ? `${active} ALARM${active > 1 ? "S" : ""}` : "NO ALARM";
-  badge.dataset.value = String(active);
-  const rows = state.alarms.slice().reverse().map((a) => {
+  badge.className = "status " + (book.active ? "alarm" : (book.unacknowledged ? "notice" : "waiting"));
+  badge.textContent = (book.active ? `${book.active} ALARM${book.active > 1 ? "S" : ""}` : "NO ALARM") +
+    (book.unacknowledged ? ` (${book.unacknowledged} UNACK)` : "");
+  Object.assign(badge.dataset, {value: String(book.active), unacknowledged: String(book.unacknowledged)});
+  $("ack-all").disabled = book.unacknowledged === 0;
+  // redrawn only on a change, so that a button is not replaced under the operator's click
+  const key = JSON.stringify(book.alarms);
+  if (key === state.alarmsShown) return;
+  state.alarmsShown = key;
+  const rows = book.alarms.slice(-ALARMS_SHOWN).reverse().map((a) => {
     const tr = document.createElement("tr");
-    tr.dataset.alarm = a.id;
-    tr.dataset.state = a.state;
-    const cells = [a.state, a.name, a.limit, `${a.value.toFixed(1)} ${a.unit}`,
-                   `${a.raised_s.toFixed(1)}, ${clock(a.raised_at)}`,
-                   a.cleared_at ? `${a.cleared_s === null ? "restart" : a.cleared_s.toFixed(1)}, ${clock(a.cleared_at)}` : "–"];
+    Object.assign(tr.dataset, {alarm: a.id, seq: String(a.seq), state: a.state});
+    const cleared = a.cleared_s === null ? "–"
+      : `${a.cleared_s.toFixed(1)}, ${wallClock(a.cleared_at)}${a.cleared_by === "restart" ? " (restart)" : ""}`;
+    const acked = a.acked_by === null ? "–" : `${a.acked_by}, ${wallClock(a.acked_at)}`;
+    const cells = [STATE_TEXT[a.state], a.name, limitText(a), `${a.value.toFixed(1)} ${a.unit}`,
+                   `${a.raised_s.toFixed(1)}, ${wallClock(a.raised_at)}`, cleared, acked];
     for (const text of cells) tr.appendChild(document.createElement("td")).textContent = text;
+    // beside the state, so that it is on screen when a narrow screen scrolls the table
+    if (a.acked_by === null) {
+      const button = tr.firstChild.appendChild(document.createElement("button"));
+      button.type = "button";
+      button.className = "ack";
+      button.textContent = "acknowledge";
+      button.addEventListener("click", () => acknowledge(a.seq));
+    }
     return tr;
   });
   $("alarm-list").replaceChildren(...rows);
+}
+
+// The operator's name goes with each acknowledgement; the browser remembers it.
+async function acknowledge(seq) {
+  const operator = $("operator").value.trim();
+  const note = $("ack-note");
+  if (!operator) {
+    note.textContent = "type your name in 'operator' to acknowledge";
+    $("operator").focus();
+    return;
+  }
+  window.localStorage.setItem("minetwin.operator", operator);
+  const response = await fetch("/monitor/alarms/ack", {
+    method: "POST", headers: {"Content-Type": "application/json"},
+    body: JSON.stringify({seq, operator})});
+  const body = await response.json();
+  note.textContent = response.ok
+    ? `acknowledged ${body.acknowledged.length} by ${operator}` : body.error;
+  showAlarms(await getJSON("/monitor/alarms"));
 }
 
 // ------------------------------------------------------------------- events
@@ -500,29 +512,24 @@ const TRENDS = [
    series: [{label: "particles", value: rowsOf("particle_count"), colour: "#79c0ff"}]},
 ];
 
-// The range of a trend's own series (not its limit lines) over the x range shown.
-function visibleExtent(u, trend) {
-  const x = u.data[0], xmin = u.scales.x.min, xmax = u.scales.x.max;
+// The y range of a trend over the x range shown, from its own series (not its
+// limit lines). Set by the page with the x range (the y scale has auto off):
+// uPlot's own auto-ranging would include the limit lines.
+function yRange(trend, data, range) {
+  if (trend.range) return {min: trend.range[0], max: trend.range[1]};
+  const x = data[0];
   let lo = Infinity, hi = -Infinity;
   for (let s = 1; s <= trend.series.length; s++) {
-    const ys = u.data[s] || [];
+    const ys = data[s] || [];
     for (let i = 0; i < x.length; i++) {
-      if (ys[i] === null || x[i] < xmin || x[i] > xmax) continue;
+      if (ys[i] === null || x[i] < range.min || x[i] > range.max) continue;
       lo = Math.min(lo, ys[i]); hi = Math.max(hi, ys[i]);
     }
   }
-  return [lo, hi];
-}
-
-function yRange(trend) {
-  return (u) => {
-    if (trend.range) return trend.range;
-    const [lo, hi] = visibleExtent(u, trend);
-    if (!Number.isFinite(lo)) return [0, 1];
-    if (trend.zero) return [0, hi > 0 ? hi * 1.1 : 1];
-    const mid = (lo + hi) / 2, span = Math.max(hi - lo, trend.minSpan * Math.abs(mid), 1e-9);
-    return [mid - 0.6 * span, mid + 0.6 * span];
-  };
+  if (!Number.isFinite(lo)) return {min: 0, max: 1};
+  if (trend.zero) return {min: 0, max: hi > 0 ? hi * 1.1 : 1};
+  const mid = (lo + hi) / 2, span = Math.max(hi - lo, trend.minSpan * Math.abs(mid), 1e-9);
+  return {min: mid - 0.6 * span, max: mid + 0.6 * span};
 }
 
 function makeTrend(trend) {
@@ -541,7 +548,7 @@ function makeTrend(trend) {
   const chart = new uPlot({
     title: `${trend.title} [${trend.unit}]`,
     width: Math.max(box.clientWidth, 200), height: 200,
-    scales: {x: {time: false}, y: {range: yRange(trend)}},
+    scales: {x: {time: false}, y: {auto: false}},
     axes: [{...axis, label: "simulation time [s]", labelSize: 16, size: 36},
            {...axis, label: `${trend.title} [${trend.unit}]`, labelSize: 16, size: 58}],
     series,
@@ -574,15 +581,23 @@ function xRange() {
   if (state.zoom) return state.zoom;
   if (!rows.length) return null;
   const t0 = rows[0].time_s, t1 = rows[rows.length - 1].time_s;
-  const window = Number($("trend-range").value);
-  const min = window > 0 ? Math.max(t0, t1 - window) : t0;
+  const windowS = Number($("trend-range").value);
+  const min = windowS > 0 ? Math.max(t0, t1 - windowS) : t0;
   return {min, max: t1 > min ? t1 : min + 1};
 }
 
 function applyXRange() {
   const range = xRange();
   if (!range) return;
-  for (const chart of Object.values(state.charts)) chart.setScale("x", range);
+  for (const chart of Object.values(state.charts)) {
+    chart.batch(() => {
+      chart.setScale("x", range);
+      chart.setScale("y", yRange(chart.trend, chart.data, range));
+    });
+  }
+  const note = $("range-shown");
+  note.textContent = `t = ${range.min.toFixed(1)}–${range.max.toFixed(1)} s`;
+  Object.assign(note.dataset, {min: String(range.min), max: String(range.max)});
 }
 
 function drawTrends() {
@@ -596,9 +611,11 @@ function drawTrends() {
   applyXRange();
 }
 
-// The trends' data as CSV: the /history rows this page holds, every column in SI.
+// The trends' data as CSV: the /history rows in the time range the trends show
+// (the zoom, else the time-range selection), every column in SI.
 function historyCSV() {
-  const rows = state.history;
+  const range = xRange();
+  const rows = range ? state.history.filter((r) => r.time_s >= range.min && r.time_s <= range.max) : [];
   if (!rows.length) return "";
   const keys = Object.keys(rows[0]);
   const lines = [keys.join(",")];
@@ -608,9 +625,11 @@ function historyCSV() {
 
 function exportCSV() {
   const blob = new Blob([historyCSV()], {type: "text/csv"});
+  const range = xRange();
   const link = document.createElement("a");
   link.href = URL.createObjectURL(blob);
-  link.download = "stockpile_history.csv";
+  link.download = range ? `stockpile_history_t${range.min.toFixed(0)}-${range.max.toFixed(0)}s.csv`
+    : "stockpile_history.csv";
   document.body.appendChild(link);
   link.click();
   link.remove();
@@ -672,10 +691,13 @@ $("colour-by").addEventListener("change", (event) => {
   if (state.feed) drawFeedChart(state.feed);
 });
 $("show-velocity").addEventListener("change", drawPile);
-$("trend-range").addEventListener("change", applyXRange);
+// A new time range replaces a zoom (the zoom would hide it).
+$("trend-range").addEventListener("change", () => zoomTo(null));
 $("zoom-reset").addEventListener("click", () => zoomTo(null));
 $("export-csv").addEventListener("click", exportCSV);
 $("restart-dismiss").addEventListener("click", () => { $("restart-banner").hidden = true; });
+$("operator").value = window.localStorage.getItem("minetwin.operator") || "";
+$("ack-all").addEventListener("click", () => acknowledge("all"));
 window.addEventListener("resize", () => {
   for (const chart of Object.values(state.charts)) {
     chart.setSize({width: Math.max(chart.root.parentElement.clientWidth, 200), height: 200});

@@ -7,11 +7,12 @@ from pathlib import Path
 import numpy as np
 
 PICTURES = {
-    "grade": ("grade", "grade [-]", "viridis"),
-    "residence_time": ("residence_time", "residence time [s]", "magma"),
-    "speed": (None, "speed [m/s]", "plasma"),
+    "grade": ("grade", 100.0, "grade [%]", "viridis"),
+    "residence_time": ("residence_time", 1.0, "residence time [s]", "magma"),
+    "speed": (None, 1.0, "speed [m/s]", "plasma"),
 }
-"""File stem -> (snapshot key or None for |velocity|, colour-bar label, colour map)."""
+"""File stem -> (snapshot key or None for |velocity|, factor from the snapshot's SI
+value to the one shown (grade: fraction to %), colour-bar label, colour map)."""
 
 
 def pile_pictures(snapshot: dict, out_dir, run: str | None = None) -> list[Path]:
@@ -28,9 +29,9 @@ def pile_pictures(snapshot: dict, out_dir, run: str | None = None) -> list[Path]
     pos = snapshot["position"]
     diameter = 2.0 * snapshot["radius"]
     paths = []
-    for stem, (key, label, cmap) in PICTURES.items():
-        values = (np.hypot(snapshot["velocity"][:, 0], snapshot["velocity"][:, 1])
-                  if key is None else snapshot[key])
+    for stem, (key, factor, label, cmap) in PICTURES.items():
+        values = factor * (np.hypot(snapshot["velocity"][:, 0], snapshot["velocity"][:, 1])
+                           if key is None else np.asarray(snapshot[key], dtype=float))
         fig, ax = plt.subplots(figsize=(12, 5))
         if pos.shape[0]:
             disks = EllipseCollection(diameter, diameter, 0.0, units="x", offsets=pos,
