@@ -599,7 +599,6 @@ class PlantServer:
         p, D, U, I = (self.process, ua.VariantType.Double, ua.VariantType.UInt64,
                       ua.VariantType.Int32)
         w = self._write
-        await w("Plant.SimulationTime", p.time, D)
         if p.discharge_rate_setpoint != self._published_setpoint:  # the scheduled start
             await w("Plant.SP201.DischargeRateSetpoint", p.discharge_rate_setpoint, D)
             self._published_setpoint = p.discharge_rate_setpoint
@@ -634,6 +633,9 @@ class PlantServer:
             for belt, totalizer in (("cv101", p.mass_in_kg), ("cv301", p.mass_out_kg)):
                 await w(f"Plant.{belt.upper()}.MassFlow", p.mass_flow(belt), D)
                 await w(f"Plant.{belt.upper()}.Totalizer", totalizer, D)
+        # the clock last: a client that reads time T in one Read also reads every
+        # record discharged up to T (writes of historized values may yield between)
+        await w("Plant.SimulationTime", p.time, D)
 
     async def publish_setpoint_changes(self) -> None:
         changes, D = self.process.setpoint_changes, ua.VariantType.Double

@@ -32,6 +32,11 @@ delete any subscription, and reports the node's ``UserAccessLevel`` and
 * **Per-role access attributes.** ``UserAccessLevel`` has CurrentWrite only
   where the reading session's role may write the node, ``UserExecutable`` is
   true only for the role's methods.
+* **IndexRange on reads** (asyncua ignores it and returns the whole array):
+  a one-dimensional ``start:end`` or ``index`` range reads that part of an
+  array value (Part 4, 7.22 NumericRange; an end past the array is cut, a
+  start past it is ``BadIndexRangeNoData``, a malformed range
+  ``BadIndexRangeInvalid``), so a client reads only the tail of a long list.
 
 The plant server installs this processor (``install``) and attaches a
 ``SessionGuard`` to asyncua's internal server; without one the processor
@@ -257,7 +262,9 @@ class PlantProcessor(UaProcessor):
             value = results[k]
             if not value.StatusCode.is_good():
                 continue
-            if item.AttributeId == ua.AttributeIds.UserAccessLevel:
+            if item.IndexRange:
+                results[k] = _index_range(value, item.IndexRange)
+            elif item.AttributeId == ua.AttributeIds.UserAccessLevel:
                 level = int(value.Value.Value)
                 if role not in guard.writable_roles.get(item.NodeId, ()):
                     level &= ~CURRENT_WRITE
@@ -270,6 +277,26 @@ class PlantProcessor(UaProcessor):
         response.Results = results
         self.send_response(requesthdr.RequestHandle, seqhdr, response)
         return True
+
+
+def _index_range(value: ua.DataValue, text: str) -> ua.DataValue:
+    """The part ``text`` ("start:end" or "index", inclusive) of an array value."""
+    start, _, end = text.partition(":")
+    try:
+        first, last = int(start), int(end) if end else int(start)
+        if first < 0 or last < first or (end and last == first):
+            raise ValueError(text)
+    except ValueError:
+        return ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadIndexRangeInvalid))
+    variant = value.Value
+    items = variant.Value if variant is not None else None
+    if not isinstance(items, (list, tuple)):
+        return ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadIndexRangeInvalid))
+    if first >= len(items):
+        return ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadIndexRangeNoData))
+    return ua.DataValue(ua.Variant(list(items[first:last + 1]), variant.VariantType),
+                        SourceTimestamp=value.SourceTimestamp,
+                        ServerTimestamp=value.ServerTimestamp)
 
 
 def install() -> None:
