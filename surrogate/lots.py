@@ -115,18 +115,21 @@ class LotLog:
         tracking id or source when the storage has none)."""
         if kind not in EVENT_KINDS:
             raise ValueError(f"kind: must be one of {EVENT_KINDS} (got {kind!r})")
-        tids = list(tracking_ids)
-        k = len(tids)
+        tids, sources = np.asarray(tracking_ids), np.asarray(sources)
+        k = tids.size
         if k == 0:
             return
+        if tids.dtype.kind in "iu":
+            has = np.ones(k, dtype=bool)
+        else:  # None where the storage has no tracking id
+            has = np.array([t is not None for t in tids.tolist()])
+            tids = np.array([int(t) if t is not None else 0 for t in tids.tolist()])
+        if sources.dtype.kind not in "iu":
+            sources = np.array([-1 if s is None else int(s) for s in sources.tolist()])
         self._rows.extend(
             time_s=np.full(k, float(time_s)), kind=np.full(k, EVENT_KINDS.index(kind)),
-            tracking_id=np.array([0 if t is None else int(t) for t in tids], dtype=np.uint64),
-            has_tracking_id=np.array([t is not None for t in tids]),
-            mass_kg=np.asarray(masses, dtype=np.float64),
-            grade=np.asarray(grades, dtype=np.float64),
-            source=np.array([-1 if s is None else int(s) for s in sources], dtype=np.int64),
-            particle_count=np.asarray(counts, dtype=np.int64))
+            tracking_id=tids.astype(np.uint64), has_tracking_id=has,
+            mass_kg=masses, grade=grades, source=sources, particle_count=counts)
         self.last_seq += k
 
     def since(self, seq: int = 0) -> list[dict]:

@@ -165,6 +165,12 @@ class StockpileAsset:
 
     def _remove(self, ids: np.ndarray) -> dict:
         store = self.particles
+        if ids.size == 0:  # most steps of a slow feeder: nothing reaches the outlet
+            empty = np.empty(0)
+            return {"tracking_ids": np.empty(0, dtype=np.uint64), "masses": empty,
+                    "grades": empty, "sources": np.empty(0, dtype=np.int64),
+                    "counts": np.empty(0, dtype=np.int64),
+                    "particle_ids": np.empty(0, dtype=np.uint64)}
         slots = store.slots(ids)
         tids = store.attribute("tracking_id")[slots]
         mass = store.mass[slots]
