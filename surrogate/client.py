@@ -575,6 +575,7 @@ class StockpileClient:
             "step_time_p99_ms": float(np.percentile(times, 99)),
             "step_time_mean_ms": float(times.mean()),
             "cycles": len(self.step_times_ms), "max_lag_s": self.max_lag_s,
+            "lag_p50_s": float(np.percentile(self.lags_s, 50)) if self.lags_s else 0.0,
             "lag_p99_s": float(np.percentile(self.lags_s, 99)) if self.lags_s else 0.0,
             "first_cycle_lag_s": self.lags_s[0] if self.lags_s else 0.0,
             "reconnects": self.reconnects, "history": self.asset.history(),
