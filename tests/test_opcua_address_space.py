@@ -216,3 +216,34 @@ def test_history_read_events_gives_back_the_bins_filtered_by_time(plant):
     # the fields are the bins': the same tracking ids as the (unacknowledged) pending list
     assert [e.TrackingId for e in early + late] == list(pending)[-len(everything):]
     assert all(e.Mass > 0 and 0 <= e.Grade <= 1 and e.DischargeTime > 0 for e in early + late)
+
+
+def test_index_range_reads_part_of_an_array(plant):
+    """Part 4, 7.22 NumericRange on a Read (the stockpile client reads only the
+    pending records it has not seen): a range gives that part, an end past the
+    array is cut, a start past it is BadIndexRangeNoData, a reversed range is
+    BadIndexRangeInvalid."""
+    server, state = plant
+
+    async def body():
+        surrogate = await connect(server.url, state, "surrogate")
+        try:
+            idx = await surrogate.get_namespace_index(NS)
+            await surrogate.get_node(ua.NodeId("Plant", idx)).call_method(
+                ua.NodeId("Plant.AdvanceTime", idx), ua.Variant(30.0, ua.VariantType.Double))
+            node = ua.NodeId("Plant.SP201.Inbound.PendingSequence", idx)
+            whole = await surrogate.get_node(node).read_value()
+            params = ua.ReadParameters()
+            for text in ("2:4", f"3:{len(whole) + 100}", f"{len(whole)}:{len(whole) + 5}", "4:2"):
+                item = ua.ReadValueId()
+                item.NodeId, item.AttributeId, item.IndexRange = node, ua.AttributeIds.Value, text
+                params.NodesToRead.append(item)
+            return whole, await surrogate.uaclient.read(params)
+        finally:
+            await surrogate.disconnect()
+
+    whole, (part, tail, past, reversed_) = asyncio.run(body())
+    assert len(whole) >= 5
+    assert part.Value.Value == whole[2:5] and tail.Value.Value == whole[3:]
+    assert past.StatusCode.value == ua.StatusCodes.BadIndexRangeNoData
+    assert reversed_.StatusCode.value == ua.StatusCodes.BadIndexRangeInvalid
