@@ -303,8 +303,9 @@ class ParticleStore:
         new_n = self._n - slots.size
         removed_ids = self._arrays["id"][slots].astype(np.int64)
         holes = slots[slots < new_n]
-        tail = np.arange(new_n, self._n)
-        movers = tail[~np.isin(tail, slots, assume_unique=True)]
+        staying = np.ones(slots.size, dtype=bool)  # the tail rows not removed move
+        staying[slots[slots >= new_n] - new_n] = False
+        movers = np.arange(new_n, self._n)[staying]
         for arr in self._arrays.values():
             arr[holes] = arr[movers]
         self._slot_of_id[removed_ids] = -1

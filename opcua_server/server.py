@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 from asyncua import Server, ua
+from asyncua.common.events import Event
 from asyncua.common.utils import ServiceError
 from asyncua.crypto.permission_rules import PermissionRuleset, UserRole
 from asyncua.crypto.security_policies import SecurityPolicyNone
@@ -74,27 +75,51 @@ EVENT_FIELDS = (("Sequence", ua.VariantType.UInt64), ("TrackingId", ua.VariantTy
 HISTORIZED = ("Plant.SP201.DischargeRateSetpoint", "Plant.SP201.HeldMass",
               "Plant.SP201.AverageGrade", "Plant.CV101.MassFlow", "Plant.CV101.Totalizer",
               "Plant.CV301.MassFlow", "Plant.CV301.Totalizer")
-"""Variables whose history HistoryRead serves (and SP201's BinDischargedEventType events)."""
+"""Variables whose history HistoryRead serves (the bin events: ``_History``)."""
 MAX_CATCH_UP_S = 0.5
 """Most wall time [s] one tick of the real-time clock advances (x speed)."""
 HISTORY_PERIOD = timedelta(hours=6)
 """How far back the history is kept (wall-clock time)."""
 
 
+BIN_EVENTS_TABLE = """CREATE TABLE IF NOT EXISTS bin_events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, time TEXT NOT NULL, sequence INTEGER NOT NULL,
+    tracking_id TEXT NOT NULL, mass REAL NOT NULL, grade REAL NOT NULL, hardness REAL NOT NULL,
+    source INTEGER NOT NULL, discharge_time REAL NOT NULL, event_id BLOB NOT NULL,
+    message TEXT NOT NULL)"""
+"""The BinDischargedEventType events as rows (``time``: the event's Time, ISO UTC;
+tracking ids as decimal text, they are uint64)."""
+
+
 class _History(HistorySQLite):
-    """asyncua's SQLite history, with three fixes: table names it accepts for our
-    string node ids (it quotes the id, and its own table-name check then refuses
-    the quote); event retention that works (the events its history subscription
-    decodes say the Server emitted them, and it looks the period up under that
-    node); and old rows pruned once a minute per table instead of by a full scan
-    after every insert (at 1000 bins/s that scan stalled the server)."""
+    """asyncua's SQLite history for the variables, with two fixes (table names
+    it accepts for our string node ids: it quotes the id, and its own
+    table-name check then refuses the quote; old rows pruned once a minute per
+    table instead of by a full scan after every insert, which at 1000 bins/s
+    stalled the server), and the bin events in a table of their own.
+
+    The bin events are not asyncua's event history: that one decodes every
+    event through an internal subscription and commits per event (1.5 ms per
+    event in the server's loop, profiled at 1000 bins/s). Here the server
+    hands over the events of one tick (``save_bin_events``: one insert of all
+    rows, one commit), and HistoryReadEvents of SP201, Plant or the Server
+    object (the notifier chain they reach) reads them back (``make_event``
+    builds each event from its row)."""
 
     PRUNE_EVERY_S = 60.0
 
-    def __init__(self, path: str):
+    def __init__(self, path: str, bin_event_sources=(), make_event=None,
+                 period: timedelta = timedelta(hours=6)):
         super().__init__(path)
         self._pruned_at: dict[str, float] = {}
-        self._event_periods: dict = {}
+        self.bin_event_sources = set(bin_event_sources)
+        self.make_event = make_event
+        self.period = period
+
+    async def init(self) -> None:
+        await super().init()
+        await self._db.execute(BIN_EVENTS_TABLE)
+        await self._db.commit()
 
     def _due(self, table: str) -> bool:
         now = time.monotonic()
@@ -111,19 +136,28 @@ class _History(HistorySQLite):
         if self._due(table):
             await super().execute_sql_delete(condition, args, table, node_id)
 
-    async def new_historized_event(self, source_id, evtypes, period, count=0) -> None:
-        self._event_periods[source_id] = period
-        await super().new_historized_event(source_id, evtypes, None, count)  # pruned here
+    async def save_bin_events(self, rows: list[tuple]) -> None:
+        """Rows ``(time, sequence, tracking id, mass, grade, hardness, source,
+        discharge time, event id, message)`` of one tick, in one transaction."""
+        await self._db.executemany("INSERT INTO bin_events VALUES (NULL, ?, ?, ?, ?, ?, ?, ?, "
+                                   "?, ?, ?)", rows)
+        if self._due("bin_events"):
+            limit = (datetime.now(timezone.utc) - self.period).isoformat(" ")
+            await self._db.execute("DELETE FROM bin_events WHERE time < ?", (limit,))
+        await self._db.commit()
 
-    async def save_event(self, event) -> None:
-        event.emitting_node = event.SourceNode
-        await super().save_event(event)
-        period = self._event_periods.get(event.SourceNode)
-        table = self._get_table_name(event.SourceNode)
-        if period and self._due(table):
-            limit = (datetime.now(timezone.utc) - period).isoformat(" ")
-            await self._db.execute(f'DELETE FROM "{table}" WHERE _Timestamp < ?', (limit,))
-            await self._db.commit()
+    async def read_event_history(self, source_id, start, end, nb_values, evfilter):
+        if source_id not in self.bin_event_sources:
+            return await super().read_event_history(source_id, start, end, nb_values, evfilter)
+        start_time, end_time, order, limit = self._get_bounds(start, end, nb_values)
+        async with self._db.execute(
+                "SELECT time, sequence, tracking_id, mass, grade, hardness, source, "
+                f"discharge_time, event_id, message FROM bin_events WHERE time BETWEEN ? AND ? "
+                f"ORDER BY id {order} LIMIT ?", (start_time, end_time, limit)) as cursor:
+            rows = await cursor.fetchall()
+        cut = self.max_history_data_response_size
+        cont = datetime.fromisoformat(rows[cut][0]) if len(rows) > cut else None
+        return [self.make_event(row) for row in rows[:cut]], cont
 
 
 @dataclass
@@ -534,17 +568,41 @@ class PlantServer:
 
     async def _start_history(self) -> None:
         """HistoryRead of the setpoint, the stockpile's reported values and the belt
-        scales, kept ``HISTORY_PERIOD`` in ``STATE/history.sqlite`` (asyncua's
-        SQLite history, in WAL mode). Not of the bin events: asyncua's event
-        history costs ~1.5 ms per event in the server's loop (measured), more
-        than 1000 bins/s allow; every bin is in the ledger (``inbound`` table)."""
-        history = _History(str(self.state_dir / "history.sqlite"))
+        scales, and HistoryReadEvents of the bin events on SP201, Plant and the
+        Server object, kept ``HISTORY_PERIOD`` in ``STATE/history.sqlite``
+        (WAL; see ``_History``)."""
+        notifiers = (self.sp201_node.nodeid,) + self._notifiers
+        history = _History(str(self.state_dir / "history.sqlite"), notifiers,
+                           self._history_event, HISTORY_PERIOD)
         await history.init()
         await history._db.execute("PRAGMA journal_mode=WAL")
         await history._db.execute("PRAGMA synchronous=NORMAL")
+        self.history = history
         self.server.iserver.history_manager.set_storage(history)
         await self.server.historize_node_data_change(
             [self.server.get_node(self.nid(name)) for name in HISTORIZED], period=HISTORY_PERIOD)
+        for node in notifiers:  # HistoryRead: generic clients offer the event history
+            await self.server.get_node(node).set_event_notifier(
+                [ua.EventNotifier.SubscribeToEvents, ua.EventNotifier.HistoryRead])
+
+    def _history_event(self, row: tuple) -> Event:
+        """One BinDischargedEventType event of the history, from its row."""
+        when, seq, tid, mass, grade, hardness, source, discharged, event_id, message = row
+        when = datetime.fromisoformat(when)
+        template, V = self.event_generator.event, ua.VariantType
+        event = Event()
+        for name, value, vtype in (
+                ("EventId", event_id, V.ByteString), ("EventType", template.EventType, V.NodeId),
+                ("SourceNode", template.SourceNode, V.NodeId),
+                ("SourceName", template.SourceName, V.String), ("Time", when, V.DateTime),
+                ("ReceiveTime", when, V.DateTime),
+                ("Message", ua.LocalizedText(message), V.LocalizedText),
+                ("Severity", template.Severity, V.UInt16), ("Sequence", seq, V.UInt64),
+                ("TrackingId", int(tid), V.UInt64), ("Mass", mass, V.Double),
+                ("Grade", grade, V.Double), ("Hardness", hardness, V.Double),
+                ("Source", source, V.Int32), ("DischargeTime", discharged, V.Double)):
+            event.add_property(name, value, vtype)
+        return event
 
     async def _add_variable(self, parent, nodeid, name, value, vtype, description, unit,
                             eu_range, dims):
@@ -599,7 +657,6 @@ class PlantServer:
         p, D, U, I = (self.process, ua.VariantType.Double, ua.VariantType.UInt64,
                       ua.VariantType.Int32)
         w = self._write
-        await w("Plant.SimulationTime", p.time, D)
         if p.discharge_rate_setpoint != self._published_setpoint:  # the scheduled start
             await w("Plant.SP201.DischargeRateSetpoint", p.discharge_rate_setpoint, D)
             self._published_setpoint = p.discharge_rate_setpoint
@@ -634,6 +691,9 @@ class PlantServer:
             for belt, totalizer in (("cv101", p.mass_in_kg), ("cv301", p.mass_out_kg)):
                 await w(f"Plant.{belt.upper()}.MassFlow", p.mass_flow(belt), D)
                 await w(f"Plant.{belt.upper()}.Totalizer", totalizer, D)
+        # the clock last: a client that reads time T in one Read also reads every
+        # record discharged up to T (writes of historized values may yield between)
+        await w("Plant.SimulationTime", p.time, D)
 
     async def publish_setpoint_changes(self) -> None:
         changes, D = self.process.setpoint_changes, ua.VariantType.Double
@@ -683,7 +743,7 @@ class PlantServer:
             self.pause()
             if self.on_until is not None:
                 self.on_until()
-        ev = self.event_generator
+        ev, rows = self.event_generator, []
         for r in records:
             ev.event.Sequence = ua.Variant(r.sequence, ua.VariantType.UInt64)
             ev.event.TrackingId = ua.Variant(r.tracking_id, ua.VariantType.UInt64)
@@ -692,11 +752,16 @@ class PlantServer:
             ev.event.Hardness = r.hardness
             ev.event.Source = ua.Variant(r.source, ua.VariantType.Int32)
             ev.event.DischargeTime = r.time_s
-            await ev.trigger(message=f"bin {r.tracking_id} discharged onto SP201 (seq {r.sequence})")
+            message = f"bin {r.tracking_id} discharged onto SP201 (seq {r.sequence})"
+            await ev.trigger(message=message)
+            rows.append((ev.event.Time.isoformat(" "), r.sequence, str(r.tracking_id), r.mass_kg,
+                         r.grade, r.hardness, r.source, r.time_s, ev.event.EventId.Value, message))
             for notifier in self._notifiers:  # the same event, up the notifier chain
-                event = copy.copy(ev.event)  # a copy: the history records SP201's asynchronously
+                event = copy.copy(ev.event)  # a copy: the generator's event stays SP201's
                 event.emitting_node = notifier
                 await self.server.iserver.subscription_service.trigger_event(event)
+        if rows:
+            await self.history.save_bin_events(rows)
 
     async def run(self) -> None:
         """Serve until ``stop()``; advance in real time unless in lockstep."""

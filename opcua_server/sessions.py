@@ -28,10 +28,19 @@ delete any subscription, and reports the node's ``UserAccessLevel`` and
 * **Subscriptions belong to their session.** Delete/modify/publishing-mode/
   monitored-item/republish requests naming another session's subscription
   are refused (``BadSubscriptionIdInvalid``); a transfer only between
-  sessions of the same user.
+  sessions of the same user; ``ConditionRefresh``/``ConditionRefresh2`` on
+  another session's subscription is refused with ``BadUserAccessDenied``
+  (Part 9, 5.5.7: the server verifies the subscription is the calling
+  session's; asyncua does not, so a viewer could inject refresh events
+  into an operator's subscription).
 * **Per-role access attributes.** ``UserAccessLevel`` has CurrentWrite only
   where the reading session's role may write the node, ``UserExecutable`` is
   true only for the role's methods.
+* **IndexRange on reads** (asyncua ignores it and returns the whole array):
+  a one-dimensional ``start:end`` or ``index`` range reads that part of an
+  array value (Part 4, 7.22 NumericRange; an end past the array is cut, a
+  start past it is ``BadIndexRangeNoData``, a malformed range
+  ``BadIndexRangeInvalid``), so a client reads only the tail of a long list.
 
 The plant server installs this processor (``install``) and attaches a
 ``SessionGuard`` to asyncua's internal server; without one the processor
@@ -65,7 +74,9 @@ def _req(name: str) -> ua.NodeId:
 CREATE, ACTIVATE, CLOSE = _req("CreateSession"), _req("ActivateSession"), _req("CloseSession")
 SESSIONLESS = frozenset({CREATE, _req("FindServers"), _req("GetEndpoints"), _req("RegisterServer"),
                          _req("RegisterServer2"), _req("CloseSecureChannel")})
-READ, DELETE_SUBSCRIPTIONS = _req("Read"), _req("DeleteSubscriptions")
+READ, DELETE_SUBSCRIPTIONS, CALL = _req("Read"), _req("DeleteSubscriptions"), _req("Call")
+CONDITION_REFRESH = frozenset({ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+                               ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh2)})
 TRANSFER = _req("TransferSubscriptions")
 ONE_SUBSCRIPTION = {  # request -> its parameters type, each naming one SubscriptionId
     _req("ModifySubscription"): ua.ModifySubscriptionParameters,
@@ -159,6 +170,8 @@ class PlantProcessor(UaProcessor):
                 return await self._read(guard, requesthdr, seqhdr, body)
             if typeid == DELETE_SUBSCRIPTIONS:
                 return await self._delete_subscriptions(requesthdr, seqhdr, body)
+            if typeid == CALL and await self._call_with_refresh(typeid, requesthdr, seqhdr, body):
+                return True
             self._check_subscription_owner(typeid, body)
         return await super()._process_message(typeid, requesthdr, seqhdr, body)
 
@@ -232,6 +245,41 @@ class PlantProcessor(UaProcessor):
                 log.warning("refused a request on another session's subscription %s", sid)
                 raise ServiceError(ua.StatusCodes.BadSubscriptionIdInvalid)
 
+    def _foreign_refresh(self, method) -> bool:
+        """A ConditionRefresh(2) naming an existing subscription of another session."""
+        if method.MethodId not in CONDITION_REFRESH or not method.InputArguments:
+            return False
+        sid = getattr(method.InputArguments[0], "Value", None)
+        return isinstance(sid, int) and not isinstance(sid, bool) and \
+            self.iserver.subscription_service.subscriptions.get(sid) is not None and \
+            not self._owned(sid)
+
+    async def _call_with_refresh(self, typeid, requesthdr, seqhdr, body) -> bool:
+        """Answer a Call that refreshes another session's subscription (False: not one;
+        asyncua answers it)."""
+        params = struct_from_binary(ua.CallParameters, body.copy())
+        foreign = [self._foreign_refresh(m) for m in params.MethodsToCall]
+        if not any(foreign):
+            return False
+        permissions = self._connection.security_policy.permissions
+        if permissions is not None and not permissions.check_validity(self.session.user, typeid,
+                                                                       body.copy()):
+            raise ServiceError(ua.StatusCodes.BadUserAccessDenied)
+        self.session.touch()
+        results = []
+        for method, refused in zip(params.MethodsToCall, foreign):
+            if refused:
+                log.warning("refused ConditionRefresh of subscription %s: not this session's",
+                            method.InputArguments[0].Value)
+                results.append(ua.CallMethodResult(
+                    StatusCode=ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)))
+            else:
+                results.extend(await self.session.call([method]))
+        response = ua.CallResponse()
+        response.Results = results
+        self.send_response(requesthdr.RequestHandle, seqhdr, response)
+        return True
+
     async def _delete_subscriptions(self, requesthdr, seqhdr, body):
         params = struct_from_binary(ua.DeleteSubscriptionsParameters, body)
         own = [sid for sid in params.SubscriptionIds if self._owned(sid)]
@@ -257,7 +305,9 @@ class PlantProcessor(UaProcessor):
             value = results[k]
             if not value.StatusCode.is_good():
                 continue
-            if item.AttributeId == ua.AttributeIds.UserAccessLevel:
+            if item.IndexRange:
+                results[k] = _index_range(value, item.IndexRange)
+            elif item.AttributeId == ua.AttributeIds.UserAccessLevel:
                 level = int(value.Value.Value)
                 if role not in guard.writable_roles.get(item.NodeId, ()):
                     level &= ~CURRENT_WRITE
@@ -270,6 +320,26 @@ class PlantProcessor(UaProcessor):
         response.Results = results
         self.send_response(requesthdr.RequestHandle, seqhdr, response)
         return True
+
+
+def _index_range(value: ua.DataValue, text: str) -> ua.DataValue:
+    """The part ``text`` ("start:end" or "index", inclusive) of an array value."""
+    start, _, end = text.partition(":")
+    try:
+        first, last = int(start), int(end) if end else int(start)
+        if first < 0 or last < first or (end and last == first):
+            raise ValueError(text)
+    except ValueError:
+        return ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadIndexRangeInvalid))
+    variant = value.Value
+    items = variant.Value if variant is not None else None
+    if not isinstance(items, (list, tuple)):
+        return ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadIndexRangeInvalid))
+    if first >= len(items):
+        return ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadIndexRangeNoData))
+    return ua.DataValue(ua.Variant(list(items[first:last + 1]), variant.VariantType),
+                        SourceTimestamp=value.SourceTimestamp,
+                        ServerTimestamp=value.ServerTimestamp)
 
 
 def install() -> None:

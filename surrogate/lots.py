@@ -17,6 +17,7 @@ leaves over one or more ``out`` events. Units: s, kg; grade dimensionless.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
@@ -28,11 +29,84 @@ EVENT_KINDS = ("in", "out")
 """``in``: a lot received; ``out``: (part of) a lot discharged."""
 
 
+class ColumnRing:
+    """The latest ``capacity`` rows of fixed numeric columns, oldest first.
+
+    A ring buffer of one array per column (structure of arrays): appending
+    a row writes one element per column, and a checkpoint stores the
+    columns as raw arrays instead of a Python object per row. The arrays
+    start small and double up to ``capacity`` rows.
+    """
+
+    def __init__(self, capacity: int, columns: dict):
+        self.capacity = max(int(capacity), 1)
+        size = min(self.capacity, 1024)
+        self.columns = {name: np.zeros(size, dtype=dtype) for name, dtype in columns.items()}
+        self.start = 0
+        self.count = 0
+
+    def __len__(self) -> int:
+        return self.count
+
+    def append(self, **values) -> None:
+        """One row: a scalar per column."""
+        self._reserve(self.count + 1)
+        size = next(iter(self.columns.values())).size
+        slot = (self.start + self.count) % size
+        for name, column in self.columns.items():
+            column[slot] = values[name]
+        self._advance(1, size)
+
+    def extend(self, **values) -> None:
+        """Several rows: arrays of equal length per column (only the last
+        ``capacity`` rows are kept)."""
+        k = len(next(iter(values.values())))
+        if k == 0:
+            return
+        skip = max(k - self.capacity, 0)
+        self._reserve(self.count + k - skip)
+        size = next(iter(self.columns.values())).size
+        slots = (self.start + self.count + np.arange(k - skip)) % size
+        for name, column in self.columns.items():
+            column[slots] = np.asarray(values[name])[skip:]
+        self._advance(k - skip, size)
+
+    def _advance(self, k: int, size: int) -> None:
+        overflow = max(self.count + k - self.capacity, 0)
+        self.start = (self.start + overflow) % size
+        self.count = min(self.count + k, self.capacity)
+
+    def _reserve(self, needed: int) -> None:
+        size = next(iter(self.columns.values())).size
+        if needed <= size or size >= self.capacity:
+            return
+        grown = min(max(2 * size, needed), self.capacity)
+        order = self._order(self.count)
+        for name, column in self.columns.items():
+            fresh = np.zeros(grown, dtype=column.dtype)
+            fresh[:self.count] = column[order]
+            self.columns[name] = fresh
+        self.start = 0
+
+    def _order(self, k: int) -> np.ndarray:
+        size = next(iter(self.columns.values())).size
+        return (self.start + np.arange(self.count - k, self.count)) % size
+
+    def last(self, k: int) -> dict:
+        """The latest ``k`` rows (at most all), oldest first, as arrays per column."""
+        order = self._order(min(max(int(k), 0), self.count))
+        return {name: column[order] for name, column in self.columns.items()}
+
+
 class LotLog:
-    """The latest ``capacity`` macro-tracking events (see module docstring)."""
+    """The latest ``capacity`` macro-tracking events (see module docstring), kept
+    as columns (``ColumnRing``); ``since`` builds the event dicts."""
 
     def __init__(self, capacity: int = 20_000):
-        self._events: deque[dict] = deque(maxlen=int(capacity))
+        self._rows = ColumnRing(capacity, {
+            "time_s": np.float64, "kind": np.int8, "tracking_id": np.uint64,
+            "has_tracking_id": np.bool_, "mass_kg": np.float64, "grade": np.float64,
+            "source": np.int64, "particle_count": np.int64})
         self.last_seq = 0
 
     def add(self, kind: str, time_s: float, tracking_ids, masses, grades, sources,
@@ -41,23 +115,35 @@ class LotLog:
         tracking id or source when the storage has none)."""
         if kind not in EVENT_KINDS:
             raise ValueError(f"kind: must be one of {EVENT_KINDS} (got {kind!r})")
-        for tid, mass, grade, source, count in zip(tracking_ids, masses, grades, sources,
-                                                   counts):
-            self.last_seq += 1
-            self._events.append({
-                "seq": self.last_seq, "time_s": float(time_s), "kind": kind,
-                "tracking_id": None if tid is None else int(tid),
-                "mass_kg": float(mass),
-                "grade": float(grade) if np.isfinite(grade) else None,
-                "source": None if source is None or int(source) < 0 else int(source),
-                "particle_count": int(count)})
+        tids, sources = np.asarray(tracking_ids), np.asarray(sources)
+        k = tids.size
+        if k == 0:
+            return
+        if tids.dtype.kind in "iu":
+            has = np.ones(k, dtype=bool)
+        else:  # None where the storage has no tracking id
+            has = np.array([t is not None for t in tids.tolist()])
+            tids = np.array([int(t) if t is not None else 0 for t in tids.tolist()])
+        if sources.dtype.kind not in "iu":
+            sources = np.array([-1 if s is None else int(s) for s in sources.tolist()])
+        self._rows.extend(
+            time_s=np.full(k, float(time_s)), kind=np.full(k, EVENT_KINDS.index(kind)),
+            tracking_id=tids.astype(np.uint64), has_tracking_id=has,
+            mass_kg=masses, grade=grades, source=sources, particle_count=counts)
+        self.last_seq += k
 
     def since(self, seq: int = 0) -> list[dict]:
         """Events with ``seq`` greater than ``seq``, oldest first."""
-        if not self._events or self._events[-1]["seq"] <= seq:
-            return []
-        first = self._events[0]["seq"]
-        return list(self._events)[max(int(seq) - first + 1, 0):]
+        rows = self._rows.last(self.last_seq - max(int(seq), 0))
+        first = self.last_seq - len(rows["time_s"]) + 1
+        return [{"seq": first + k, "time_s": t, "kind": EVENT_KINDS[kind],
+                 "tracking_id": tid if has else None, "mass_kg": m,
+                 "grade": g if math.isfinite(g) else None,
+                 "source": None if src < 0 else src, "particle_count": n}
+                for k, (t, kind, tid, has, m, g, src, n) in enumerate(zip(
+                    *(rows[c].tolist() for c in ("time_s", "kind", "tracking_id",
+                                                 "has_tracking_id", "mass_kg", "grade",
+                                                 "source", "particle_count"))))]
 
 
 class DischargeRate:

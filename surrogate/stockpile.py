@@ -52,7 +52,6 @@ event_rows : int
 
 from __future__ import annotations
 
-from collections import deque
 
 import numpy as np
 
@@ -60,10 +59,14 @@ from cosim.errors import ValidationError, check_finite_range
 from cosim.particles import ParticleStore
 from cosim.sizes import d_passing, rosin_rammler
 from cosim.storage import check_discharge_rate, make_storage
-from surrogate.lots import DischargeRate, LotLog
+from surrogate.lots import ColumnRing, DischargeRate, LotLog
 
 STOCKPILE_OWNER = 1
 """Owner index of the stockpile in its own particle store."""
+
+TOTALS = ("time_s", "held_mass_kg", "grade", "hardness", "d80_m", "particle_count",
+          "discharge_rate_kg_s", "discharge_actual_kg_s")
+"""The keys of ``totals()``, one column each of the history."""
 
 
 class StockpileAsset:
@@ -109,7 +112,8 @@ class StockpileAsset:
         self._actual = DischargeRate(self.time)
         self.source_names = {int(k): str(v) for k, v in (source_names or {}).items()}
         self.lots = LotLog(event_rows)
-        self._history: deque[dict] = deque(maxlen=int(history_rows))
+        self._history = ColumnRing(history_rows, {name: np.int64 if name == "particle_count"
+                                                  else np.float64 for name in TOTALS})
 
     # --------------------------------------------------------------- inflow
     def receive_bin(self, tracking_id: int, mass_kg: float, grade: float, hardness: float,
@@ -156,11 +160,17 @@ class StockpileAsset:
         self.discharge_actual = self._actual.add(self.time, float(outflow["masses"].sum()))
         self.lots.add("out", self.time, outflow["tracking_ids"], outflow["masses"],
                       outflow["grades"], outflow["sources"], outflow["counts"])
-        self._history.append(self.totals())
+        self._history.append(**self.totals())
         return outflow
 
     def _remove(self, ids: np.ndarray) -> dict:
         store = self.particles
+        if ids.size == 0:  # most steps of a slow feeder: nothing reaches the outlet
+            empty = np.empty(0)
+            return {"tracking_ids": np.empty(0, dtype=np.uint64), "masses": empty,
+                    "grades": empty, "sources": np.empty(0, dtype=np.int64),
+                    "counts": np.empty(0, dtype=np.int64),
+                    "particle_ids": np.empty(0, dtype=np.uint64)}
         slots = store.slots(ids)
         tids = store.attribute("tracking_id")[slots]
         mass = store.mass[slots]
@@ -204,7 +214,10 @@ class StockpileAsset:
 
     def history(self, since: float = -np.inf) -> list[dict]:
         """Totals rows recorded after each step with ``time_s > since``."""
-        return [row for row in self._history if row["time_s"] > since]
+        rows = self._history.last(len(self._history))
+        keep = rows["time_s"] > since
+        columns = [rows[name][keep].tolist() for name in TOTALS]
+        return [dict(zip(TOTALS, values)) for values in zip(*columns)]
 
     def events(self, since: int = 0) -> list[dict]:
         """Macro-tracking events (lots in and out) with ``seq > since``."""

@@ -168,3 +168,82 @@ def test_history_read_of_the_setpoint_and_the_belt_scales(plant):
     setpoints, totals = _run(plant, "operator", body)
     assert setpoints[-2:] == [310.0, 320.0]
     assert totals and totals == sorted(totals) and totals[-1] > 0  # the earlier tests' bins
+
+
+def test_history_read_events_gives_back_the_bins_filtered_by_time(plant):
+    """HistoryReadEvents on SP201 and on the Server object (UaExpert's event history
+    view asks the Server): every bin discharged in a time window, with its fields,
+    nothing from outside the window."""
+    server, state = plant
+
+    async def body():
+        surrogate = await connect(server.url, state, "surrogate")
+        viewer = await connect(server.url, state, "viewer")
+        try:
+            idx = await viewer.get_namespace_index(NS)
+            plant_node = surrogate.get_node(ua.NodeId("Plant", idx))
+            advance = ua.NodeId("Plant.AdvanceTime", idx)
+            await plant_node.call_method(advance, ua.Variant(30.0, ua.VariantType.Double))
+            await asyncio.sleep(0.3)
+            middle = datetime.now(timezone.utc)
+            await asyncio.sleep(0.3)
+            await plant_node.call_method(advance, ua.Variant(10.0, ua.VariantType.Double))
+            end = datetime.now(timezone.utc) + timedelta(seconds=1)
+            event_type = viewer.get_node(ua.NodeId("BinDischargedEventType", idx))
+            sp201 = viewer.get_node(ua.NodeId("Plant.SP201", idx))
+            notifier = await sp201.read_attribute(ua.AttributeIds.EventNotifier)
+            early = await sp201.read_event_history(middle - timedelta(hours=1), middle,
+                                                   evtypes=event_type)
+            late = await sp201.read_event_history(middle, end, evtypes=event_type)
+            via_server = await viewer.nodes.server.read_event_history(
+                middle - timedelta(hours=1), end, evtypes=event_type)
+            pending = await viewer.get_node(
+                ua.NodeId("Plant.SP201.Inbound.PendingTrackingIds", idx)).read_value()
+            return notifier.Value.Value, early, late, via_server, pending
+        finally:
+            await viewer.disconnect()
+            await surrogate.disconnect()
+
+    notifier, early, late, via_server, pending = asyncio.run(body())
+    assert notifier & ua.EventNotifierType.HistoryRead
+    assert early and late  # bins before and after the middle of the run
+    assert all(e.Time <= datetime.now(timezone.utc) for e in early + late)
+    early_seq, late_seq = [e.Sequence for e in early], [e.Sequence for e in late]
+    assert max(early_seq) < min(late_seq)  # the time filter splits the run
+    everything = early_seq + late_seq
+    assert everything == list(range(everything[0], everything[0] + len(everything)))
+    assert [e.Sequence for e in via_server] == everything
+    # the fields are the bins': the same tracking ids as the (unacknowledged) pending list
+    assert [e.TrackingId for e in early + late] == list(pending)[-len(everything):]
+    assert all(e.Mass > 0 and 0 <= e.Grade <= 1 and e.DischargeTime > 0 for e in early + late)
+
+
+def test_index_range_reads_part_of_an_array(plant):
+    """Part 4, 7.22 NumericRange on a Read (the stockpile client reads only the
+    pending records it has not seen): a range gives that part, an end past the
+    array is cut, a start past it is BadIndexRangeNoData, a reversed range is
+    BadIndexRangeInvalid."""
+    server, state = plant
+
+    async def body():
+        surrogate = await connect(server.url, state, "surrogate")
+        try:
+            idx = await surrogate.get_namespace_index(NS)
+            await surrogate.get_node(ua.NodeId("Plant", idx)).call_method(
+                ua.NodeId("Plant.AdvanceTime", idx), ua.Variant(30.0, ua.VariantType.Double))
+            node = ua.NodeId("Plant.SP201.Inbound.PendingSequence", idx)
+            whole = await surrogate.get_node(node).read_value()
+            params = ua.ReadParameters()
+            for text in ("2:4", f"3:{len(whole) + 100}", f"{len(whole)}:{len(whole) + 5}", "4:2"):
+                item = ua.ReadValueId()
+                item.NodeId, item.AttributeId, item.IndexRange = node, ua.AttributeIds.Value, text
+                params.NodesToRead.append(item)
+            return whole, await surrogate.uaclient.read(params)
+        finally:
+            await surrogate.disconnect()
+
+    whole, (part, tail, past, reversed_) = asyncio.run(body())
+    assert len(whole) >= 5
+    assert part.Value.Value == whole[2:5] and tail.Value.Value == whole[3:]
+    assert past.StatusCode.value == ua.StatusCodes.BadIndexRangeNoData
+    assert reversed_.StatusCode.value == ua.StatusCodes.BadIndexRangeInvalid

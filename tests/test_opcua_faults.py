@@ -175,7 +175,12 @@ def test_a_server_restarted_without_its_ledger_is_refused_by_the_stockpile(tmp_p
     restarted = client = None
     try:
         client = StockpileProcess(tmp_path, state, server.url, model="fifo", rest=True)
-        time.sleep(3.0)
+        # the stockpile must have exchanged with the first server (stepped on its clock,
+        # so it has read its ledger id) before that server goes: on a loaded machine
+        # its first session took more than the 3 s this test once slept
+        end = time.monotonic() + 60.0
+        while _stockpile_time(client) <= 0 and time.monotonic() < end:
+            time.sleep(0.2)
         server.kill()
         for name in ("ledger.sqlite", "ledger.sqlite-wal", "ledger.sqlite-shm"):
             (state["server_state"] / name).unlink(missing_ok=True)
@@ -187,3 +192,15 @@ def test_a_server_restarted_without_its_ledger_is_refused_by_the_stockpile(tmp_p
                 proc.stop()
     assert code == 1
     assert "restarted without its ledger" in client.log_path.read_text()
+
+
+def _stockpile_time(stockpile) -> float:
+    """The stockpile's plant time [s] (REST /totals), 0 until it answers."""
+    import json
+    import urllib.request
+
+    try:
+        with urllib.request.urlopen(stockpile.rest_url + "/totals", timeout=2) as resp:
+            return float(json.loads(resp.read())["time_s"])
+    except (OSError, ValueError, KeyError):
+        return 0.0

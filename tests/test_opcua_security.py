@@ -262,6 +262,51 @@ def test_a_viewer_cannot_delete_or_modify_the_operators_subscription(plant):
     assert [s.value for s in own] == [S.Good]
 
 
+def test_a_viewer_cannot_condition_refresh_the_operators_subscription(plant):
+    """Part 9, 5.5.7: the server verifies the subscription is the calling session's
+    (Bad_UserAccessDenied otherwise); asyncua alone queued the refresh events in
+    the operator's subscription."""
+    server, state = plant
+    refresh_start = ua.NodeId(ua.ObjectIds.RefreshStartEventType)
+
+    class Events:
+        refreshes = 0
+
+        def event_notification(self, event):
+            Events.refreshes += event.EventType == refresh_start
+
+    async def refresh(client, subscription_id):
+        request = ua.CallMethodRequest()
+        request.ObjectId = ua.NodeId(ua.ObjectIds.ConditionType)
+        request.MethodId = ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh)
+        request.InputArguments = [ua.Variant(subscription_id, ua.VariantType.UInt32)]
+        return (await client.uaclient.call([request]))[0].StatusCode.value
+
+    async def body():
+        operator = await connect(server.url, state, "operator")
+        viewer = await connect(server.url, state, "viewer")
+        try:
+            subscription = await operator.create_subscription(50, Events())
+            await subscription.subscribe_events(operator.nodes.server, queuesize=100)
+            own_viewer = await viewer.create_subscription(50, Events())
+            foreign = await refresh(viewer, subscription.subscription_id)
+            await asyncio.sleep(0.5)
+            after_foreign = Events.refreshes
+            mine = await refresh(viewer, own_viewer.subscription_id)
+            operators = await refresh(operator, subscription.subscription_id)
+            await asyncio.sleep(0.5)
+            return foreign, after_foreign, mine, operators, Events.refreshes
+        finally:
+            await viewer.disconnect()
+            await operator.disconnect()
+
+    foreign, after_foreign, mine, operators, refreshes = asyncio.run(body())
+    assert foreign == S.BadUserAccessDenied
+    assert after_foreign == 0  # nothing reached the operator's subscription
+    assert mine == S.Good and operators == S.Good
+    assert refreshes == 1  # the operator's own refresh did arrive: the count can see them
+
+
 # ------------------------------------------------------ 4. type checks
 def test_wrongly_typed_writes_are_refused_with_bad_type_mismatch(plant):
     async def body(client, n):
