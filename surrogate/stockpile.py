@@ -92,10 +92,7 @@ class StockpileAsset:
             "pile_radius_m", pile_radius_m, 0.0, low_open=True, unit="m"))
         self.model_name = model
         self.rng = np.random.default_rng(seed)
-        options = dict(storage_options or {})
-        if model == "mixing":
-            options.setdefault("rng", self.rng)
-        self.storage = make_storage(model, **options)
+        self.storage = make_storage(model, rng=self.rng, **(storage_options or {}))
         self.particles = ParticleStore(capacity=4096, first_id=1)
         self.particles.add_attribute("tracking_id", np.uint64, 0)
         self.particles.add_attribute("source", np.int64, -1)

@@ -52,7 +52,7 @@ def _mixing_view() -> StorageView:
     """A storage view over mixing storage with particles spread in x-y."""
     rng = np.random.default_rng(7)
     store = ParticleStore()
-    storage = MixingStorage(np.random.default_rng(1)).bind(store, owner=4)
+    storage = MixingStorage(rng=np.random.default_rng(1)).bind(store, owner=4)
     count = 300
     f = np.zeros(16)
     f[[9, 10, 11]] = (0.2, 0.5, 0.3)
@@ -130,7 +130,7 @@ def _rom_view() -> StorageView:
 def _held(asset):
     """Held particles' slots of either kind of asset."""
     store = asset.particles
-    owner = getattr(asset.storage, "owner")
+    owner = asset.storage.owner
     return store, store.owned_by(owner)
 
 
@@ -247,7 +247,7 @@ def test_particles_pages_cover_every_held_particle_once(served):
     assert first["grade"] == [store.grade[slot]]
     everything = get(base, f"/particles?limit={slots.size}")[1]
     x, y = np.array(everything["x"]), np.array(everything["y"])
-    if getattr(asset.storage, "has_geometry", False):  # the model's own positions
+    if asset.storage.has_geometry:  # the model's own positions
         order = store.slots(everything["id"])
         np.testing.assert_array_equal(x, store.position[order, 0])
         np.testing.assert_array_equal(y, store.position[order, 1])
