@@ -26,6 +26,7 @@ from cosim.errors import ValidationError
 from cosim.events import PARTICLE_FIELDS
 from cosim.master import Component
 from cosim.sizes import N_CLASSES, mean_diameter
+from cosim.stockpile_view import SOURCE_ATTRIBUTE
 
 
 EVENT_FIELDS = ("id",) + PARTICLE_FIELDS
@@ -46,6 +47,10 @@ class Plant:
     rng : numpy.random.Generator
         The scenario's seeded generator.
 
+    The store gets the extrinsic particle attribute ``source``: the owner
+    index of the ``Source`` asset that created the particle (the ``origin``
+    views show, ``cosim.stockpile_view``).
+
     Attributes ``mass_in`` [kg] (all mass that appeared) and ``mass_out``
     [kg] (all mass that left as product) are the plant-wide balance terms;
     ``removed_ids`` lists the particles that left the plant entirely.
@@ -53,6 +58,8 @@ class Plant:
 
     def __init__(self, particles, events=None, rng: np.random.Generator | None = None):
         self.particles = particles
+        if SOURCE_ATTRIBUTE not in particles.attribute_names:  # origin of what is shown
+            particles.add_attribute(SOURCE_ATTRIBUTE, np.int64, -1)
         self.events = events
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.owner_names: list[str] = []
