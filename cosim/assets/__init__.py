@@ -78,13 +78,6 @@ class Plant:
         self.owner_names.append(name)
         return len(self.owner_names) - 1
 
-    def owner_of(self, name: str) -> int:
-        """Owner index of the holder called ``name``."""
-        try:
-            return self.owner_names.index(name)
-        except ValueError:
-            raise ValidationError("owner", f"one of {self.owner_names}", f"got {name!r}") from None
-
     def record(self, type: str, asset: str, t: float, slots, location) -> None:
         """Record a macro-tracking event about ``slots`` (skipped when empty).
 
@@ -151,10 +144,6 @@ class Asset(Component):
     @property
     def particles(self):
         return self.plant.particles
-
-    def held_slots(self) -> np.ndarray:
-        """Slots of the particles this asset holds."""
-        return np.flatnonzero(self.particles.owner == self.owner)
 
     def held_mass(self) -> float:
         return float(self.particles.mass[self.particles.owner == self.owner].sum())

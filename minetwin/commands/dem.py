@@ -17,10 +17,6 @@ import sys
 
 from cosim import jsonio
 
-SUMMARY_KEYS = ("particles", "dt_s", "steps", "wall_s", "particle_steps_per_s",
-                "angle_of_repose_deg", "discharged_kg", "mass_balance_rel_error")
-
-
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "dem", help="2D DEM of the stockpile: build a pile, discharge it",
