@@ -56,9 +56,13 @@ class Progress:
         self._first = None  # (wall time, done) of the first update
         self._bar = None
 
+    def _past_total(self, done: float) -> bool:
+        # a run may step a hair past its end (a DEM's last step): not "past the estimate"
+        return bool(self.total) and done > self.total * (1 + 1e-3)
+
     def _total_for(self, done: float):
         # past an estimated total: no bar rather than a bar over 100 %
-        return self.total if self.total and done <= self.total else None
+        return None if not self.total or self._past_total(done) else self.total
 
     def line(self, done: float, extra: str = "") -> str:
         """The progress text at ``done`` simulated seconds (no line break)."""
@@ -68,11 +72,13 @@ class Progress:
         measured_s = now - self._first[0]
         rate = (done - self._first[1]) / measured_s if measured_s > 0.5 else None
         postfix = extra
-        if self.total and done > self.total:
+        if self._past_total(done):
             postfix = ", ".join(p for p in (f"estimated {self.total:g} s", extra) if p)
-        return tqdm.format_meter(done, self._total_for(done), now - self.start,
+        shown = round(min(done, self.total) if self._total_for(done) else done, 2)
+        return tqdm.format_meter(shown, self._total_for(done), now - self.start,
                                  prefix=self.label, unit=UNIT, rate=rate, ascii=True,
-                                 initial=self._first[1], postfix=postfix or None,
+                                 initial=shown if rate is None else 0,
+                                 postfix=postfix or None,
                                  bar_format=None if self._total_for(done) else
                                  "{desc}: {n:.1f} s [{elapsed}, {rate_fmt}{postfix}]")
 
@@ -86,13 +92,13 @@ class Progress:
         if not self.terminal:
             print(self.line(done, extra), file=self.stream, flush=True)
             return
-        if self._bar is None or (self._bar.total and done > self._bar.total):
+        if self._bar is None or (self._bar.total and self._past_total(done)):
             if self._bar is not None:
                 self._bar.close()
             self._bar = tqdm(total=self._total_for(done), initial=done, desc=self.label,
                              unit=UNIT, file=self.stream, mininterval=self.every_s,
                              dynamic_ncols=True, leave=True)
-        self._bar.n = done
+        self._bar.n = round(min(done, self._bar.total) if self._bar.total else done, 2)
         self._bar.set_postfix_str(extra, refresh=False)
         self._bar.refresh()
 
