@@ -24,9 +24,6 @@ from test_mine import EXAMPLE, small_scene
 
 PLUGIN = Path(__file__).parent / "plugins" / "minetwin_lifo"
 
-# pip builds the plug-in in an isolated environment: about 20 s on a loaded machine
-pytestmark = pytest.mark.slow
-
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
