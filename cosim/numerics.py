@@ -60,15 +60,6 @@ baseline kernel, numba compiling for a generic CPU, glibc's maths without AVX2 a
 The nearest stand-in for a second machine in a test."""
 
 
-def reproducibility() -> dict:
-    """What the numerics depend on, for a run's summary: the mode and numba's CPU target."""
-    import numba
-
-    return {"reproducible_mode": REPRODUCIBLE,
-            "numba_cpu_name": numba.config.CPU_NAME or "host",
-            "chaotic_kernels_fastmath": HOT_JIT["fastmath"]}
-
-
 @njit(cache=True)
 def _weighted_column_sums(weights, rows, out):
     for j in range(rows.shape[1]):

@@ -1,18 +1,18 @@
-"""Progress of a long run on stderr: a label, how far, how fast, and when it ends.
+"""Progress of a long run on stderr, by tqdm: a label, how far, how fast, when it ends.
 
 One helper for every long run (the co-simulation master, ``reproduce``,
-``dem pile``/``discharge``). On a terminal it redraws one line (``\\r``
-frames) at most every ``every_s`` seconds; when stderr is not a terminal (a
-log file, a pipe, CI) it writes plain lines instead, at most every
-``log_every_s`` seconds, so a log holds readable lines and no ``\\r`` frames.
-A line reads
+``dem pile``/``discharge``). On a terminal it is a tqdm bar, redrawn at most
+every ``every_s`` seconds. When the stream is not a terminal (a log file, a
+pipe, CI) tqdm's frames (``\\r`` redraws) would fill the log, so the same
+tqdm line (``tqdm.format_meter``) is written as a plain line at most every
+``log_every_s`` seconds. A line reads
 
-    simulate: [#######       ] t = 300.0 / 1200 s (25 %), 88x real time, 3 s elapsed, ETA 10 s
+    simulate:  25%|##5       | 300.0/1200.0 [00:03<00:10, 88.00sim-s/s]
 
-The speed and the ETA are measured from the first line on, so the start-up
-(building, compiling) does not count in them, and the first line has neither
-(no "0x real time"). ``note`` prints a one-off message, e.g.
-that the first call compiles the numerical kernels.
+where the rate is simulated seconds per wall second (the real-time factor).
+The rate and the remaining time are measured from the first update on, so the
+start-up (building, compiling) does not count in them. ``note`` prints a
+one-off message, e.g. that the first call compiles the numerical kernels.
 
 Parameters (``Progress``)
 -------------------------
@@ -20,7 +20,7 @@ label : str
     What runs, e.g. ``"simulate"`` or ``"reference run"``.
 total : float or None
     Simulated time [s] the run goes to, or an estimate of it; None when
-    unknown (no bar, no ETA).
+    unknown (no bar, no remaining time).
 stream : file
     Where to write, default ``sys.stderr``.
 every_s, log_every_s : float
@@ -33,60 +33,54 @@ from __future__ import annotations
 import sys
 import time as wallclock
 
-BAR_WIDTH = 24
+from tqdm import tqdm
 
-
-def _duration(seconds: float) -> str:
-    seconds = max(seconds, 0.0)
-    if seconds < 90:
-        return f"{seconds:.0f} s"
-    if seconds < 5400:
-        return f"{seconds / 60:.1f} min"
-    return f"{seconds / 3600:.1f} h"
+UNIT = "sim-s"
+"""Unit of the progress count: simulated seconds. The rate reads "88.00sim-s/s"
+(the real-time factor) or, slower than real time, "2.00s/sim-s" (tqdm inverts it)."""
 
 
 class Progress:
-    """Progress lines for one run (see module docstring)."""
+    """Progress of one run (see module docstring)."""
 
     def __init__(self, label: str, total: float | None = None, *, stream=None,
                  every_s: float = 1.0, log_every_s: float = 10.0):
         self.label = label
         self.total = total
         self.stream = stream if stream is not None else sys.stderr
-        self.terminal = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.terminal = self.stream.isatty()
         self.every_s = every_s if self.terminal else log_every_s
         self.start = wallclock.perf_counter()
-        self.last = None
         self.done = 0.0
-        self._first = None  # (wall time, done) of the first line
-        self._open_frame = False
+        self.last = None
+        self._first = None  # (wall time, done) of the first update
+        self._bar = None
+
+    def _past_total(self, done: float) -> bool:
+        # a run may step a hair past its end (a DEM's last step): not "past the estimate"
+        return bool(self.total) and done > self.total * (1 + 1e-3)
+
+    def _total_for(self, done: float):
+        # past an estimated total: no bar rather than a bar over 100 %
+        return None if not self.total or self._past_total(done) else self.total
 
     def line(self, done: float, extra: str = "") -> str:
         """The progress text at ``done`` simulated seconds (no line break)."""
         now = wallclock.perf_counter()
-        elapsed = now - self.start
         if self._first is None:
             self._first = (now, done)
-        measured_s, measured = now - self._first[0], done - self._first[1]
-        parts = []
-        if self.total and done > self.total:  # the total was an estimate
-            parts.append(f"t = {done:.1f} s (estimated {self.total:g} s)")
-        elif self.total:
-            fraction = min(max(done / self.total, 0.0), 1.0)
-            bar = "#" * int(BAR_WIDTH * fraction)
-            parts.append(f"[{bar:<{BAR_WIDTH}}] t = {done:.1f} / {self.total:g} s "
-                         f"({100 * fraction:.0f} %)")
-        else:
-            parts.append(f"t = {done:.1f} s")
-        rate = measured / measured_s if measured_s > 0.5 and measured > 0 else None
-        if rate is not None:
-            parts.append(f"{rate:,.0f}x real time" if rate >= 10 else f"{rate:.2g}x real time")
-        parts.append(f"{_duration(elapsed)} elapsed")
-        if self.total and rate is not None and done < self.total:
-            parts.append(f"ETA {_duration((self.total - done) / rate)}")
-        if extra:
-            parts.append(extra)
-        return f"{self.label}: " + ", ".join(parts)
+        measured_s = now - self._first[0]
+        rate = (done - self._first[1]) / measured_s if measured_s > 0.5 else None
+        postfix = extra
+        if self._past_total(done):
+            postfix = ", ".join(p for p in (f"estimated {self.total:g} s", extra) if p)
+        shown = round(min(done, self.total) if self._total_for(done) else done, 2)
+        return tqdm.format_meter(shown, self._total_for(done), now - self.start,
+                                 prefix=self.label, unit=UNIT, rate=rate, ascii=True,
+                                 initial=shown if rate is None else 0,
+                                 postfix=postfix or None,
+                                 bar_format=None if self._total_for(done) else
+                                 "{desc}: {n:.1f} s [{elapsed}, {rate_fmt}{postfix}]")
 
     def update(self, done: float, extra: str = "", *, force: bool = False) -> None:
         """Report ``done`` simulated seconds; throttled unless ``force``."""
@@ -95,24 +89,30 @@ class Progress:
         if not force and self.last is not None and now - self.last < self.every_s:
             return
         self.last = now
-        text = self.line(done, extra)
-        if self.terminal:
-            print(f"\r{text}\033[K", end="", file=self.stream, flush=True)
-            self._open_frame = True
-        else:
-            print(text, file=self.stream, flush=True)
+        if not self.terminal:
+            print(self.line(done, extra), file=self.stream, flush=True)
+            return
+        if self._bar is None or (self._bar.total and self._past_total(done)):
+            if self._bar is not None:
+                self._bar.close()
+            self._bar = tqdm(total=self._total_for(done), initial=done, desc=self.label,
+                             unit=UNIT, file=self.stream, mininterval=self.every_s,
+                             dynamic_ncols=True, leave=True)
+        self._bar.n = round(min(done, self._bar.total) if self._bar.total else done, 2)
+        self._bar.set_postfix_str(extra, refresh=False)
+        self._bar.refresh()
 
     def note(self, text: str) -> None:
         """A one-off message on its own line."""
-        self._end_frame()
-        print(f"{self.label}: {text}", file=self.stream, flush=True)
+        message = f"{self.label}: {text}"
+        if self._bar is not None:
+            self._bar.write(message, file=self.stream)
+        else:
+            print(message, file=self.stream, flush=True)
 
     def close(self, extra: str = "") -> None:
         """The final line: where the run ended and how long it took."""
         self.update(self.done, extra, force=True)
-        self._end_frame()
-
-    def _end_frame(self) -> None:
-        if self._open_frame:
-            print(file=self.stream, flush=True)
-            self._open_frame = False
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None

@@ -44,7 +44,6 @@ A value outside its range, a missing required key or an unknown key is a
 from __future__ import annotations
 
 import copy
-import inspect
 import time as wallclock
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -235,7 +234,7 @@ def validate(raw: dict) -> dict:
     and a validated scenario may be edited (e.g. by ``reproduce``) and
     validated again.
     """
-    from cosim.storage import MAX_DISCHARGE_RATE, STORAGE_MODELS
+    from cosim.storage import MAX_DISCHARGE_RATE, registered_models
 
     if not isinstance(raw, dict):
         raise ValidationError("scenario", "a table of tables", f"got {type(raw).__name__}")
@@ -341,7 +340,7 @@ def validate(raw: dict) -> dict:
     cfg["stockpile"] = {
         "position_m": position,
         "outlet_m": _vector(pile, "outlet_m", "stockpile", position),
-        "model": _string(pile, "model", "stockpile", "fifo", choices=list(STORAGE_MODELS)),
+        "model": _string(pile, "model", "stockpile", "fifo", choices=list(registered_models())),
         "options": dict(_table(pile, "options", "stockpile", {})),
         "capacity_kg": _number(pile, "capacity_kg", "stockpile", 2.0e6, low=0.0,
                                low_open=True, high=1e9, unit="kg"),
@@ -450,14 +449,9 @@ def _fmu_file(name: str, path: str) -> str:
 
 
 def _storage(cfg: dict, rng_seed) -> object:
-    from cosim.storage import make_storage, storage_class
+    from cosim.storage import make_storage
 
-    name = cfg["model"]
-    options = dict(cfg["options"])
-    accepts = inspect.signature(storage_class(name)).parameters
-    if "rng" in accepts and "rng" not in options:
-        options["rng"] = np.random.default_rng(rng_seed)
-    return make_storage(name, **options)
+    return make_storage(cfg["model"], rng=np.random.default_rng(rng_seed), **cfg["options"])
 
 
 def build(config: dict, *, seed: int | None = None, storage_model: str | None = None,

@@ -35,9 +35,6 @@ RATIO = 10.0 ** (1.0 / 3.0)
 DIAMETERS = 1e-5 * RATIO ** np.arange(N_CLASSES)
 """Class diameters d_k [m] (upper edge of class k)."""
 
-LOWER_EDGES = DIAMETERS / RATIO
-"""Lower edge of each class [m]: d_{k-1}, with d_{-1} = d_0 / r."""
-
 _LOG_EDGES = np.log(np.concatenate(([DIAMETERS[0] / RATIO], DIAMETERS)))
 
 

@@ -7,11 +7,14 @@ models, to a physics-based flow model"; they form a fidelity ladder
 (docs/architecture.md): plug flow (FIFO) < perfect mixing < reduced-order model
 (ROM) < DEM.
 
-Every model has the same calls (scikit-learn style):
+Every model has the same calls (scikit-learn style: ``__init__`` stores
+parameters, a model that reads a trained state from a file does it in
+``load``):
 
-``fit(data=None)``
-    learn from data (the ROM trains here; FIFO and mixing have nothing to
-    learn and return ``self``).
+``Model(**options, rng=generator)``
+    every model takes the keyword ``rng``, a ``numpy.random.Generator``: the
+    one seeding rule. Same generator state, same result. A model that draws
+    nothing ignores it.
 ``bind(particles, owner)``
     attach to a ``ParticleStore`` and the owner index of the storage asset.
 ``receive(ids, t)``
@@ -26,13 +29,19 @@ Every model has the same calls (scikit-learn style):
     the particles expected to leave and the mass [kg] of each expected to
     leave (paper section "Predicting the properties of the mill feed").
 
-Models are registered by name in ``STORAGE_MODELS``; ``make_storage(name)``
-builds one, importing the costly ones lazily.
+Capabilities are class attributes with defaults on ``StorageModel``
+(``has_geometry``, ``checkpointable``), read from the class, never probed.
+
+Models are registered through the entry-point group ``minetwin.storage``
+(``[project.entry-points."minetwin.storage"]`` in a package's pyproject: name
+= ``"module:Class"``); MineTwin's own models are registered the same way as a
+third party's. ``storage_class(name)`` loads the class of a registered name
+(importing it only then), ``make_storage(name, rng=..., **options)`` builds one.
 """
 
 from __future__ import annotations
 
-import importlib
+from importlib.metadata import entry_points
 
 import numpy as np
 
@@ -53,20 +62,41 @@ def check_discharge_rate(rate: float, limit: float = MAX_DISCHARGE_RATE) -> floa
 class StorageModel:
     """Base class: bookkeeping shared by every storage model.
 
-    Subclasses implement ``_order_of_leaving(count)`` (which held particles
-    the feeder takes next) or override ``step`` entirely (ROM, DEM).
+    A queue-like subclass implements ``receive``, ``held_ids`` (the held
+    particles in the order they will leave) and ``_forget`` (drop the head
+    of that order); the base class runs the feeder's mass credit in ``step``
+    and the prediction in ``predict``. A model with its own flow (ROM, DEM)
+    overrides ``step`` and ``predict`` as well.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator, optional
+        The model's seeded generator (default ``default_rng(0)``); kept as
+        ``self.rng``.
     """
 
     name = "base"
 
-    def __init__(self):
+    has_geometry = False
+    """True: the model places its held particles itself in the x-y plane of the
+    pile (``position[:, 0]`` = x horizontal, ``position[:, 1]`` = y up [m]) and
+    sets their velocities [m/s]; views show them there. False: views draw the
+    schematic layout of the order of leaving (``cosim.storage_view``)."""
+
+    checkpointable = False
+    """True: the model's state is plain data (numbers, numpy arrays and
+    generators, containers, objects of registered or project classes), so the
+    stockpile client's checkpoint can save and restore it exactly."""
+
+    out_of_range_now: tuple[str, ...] = ()
+    """Names of the inputs outside the model's range of validity at its latest
+    check (a ROM's training ranges); always empty for a model without one."""
+
+    def __init__(self, *, rng: np.random.Generator | None = None):
+        self.rng = rng if rng is not None else np.random.default_rng(0)
         self.particles = None
         self.owner = None
         self._credit_kg = 0.0
-
-    def fit(self, data=None) -> "StorageModel":
-        """Learn from data; FIFO and mixing have nothing to learn."""
-        return self
 
     def bind(self, particles, owner: int) -> "StorageModel":
         """Attach to a particle store and the storage asset's owner index."""
@@ -131,9 +161,10 @@ class FifoStorage(StorageModel):
     """
 
     name = "fifo"
+    checkpointable = True
 
-    def __init__(self):
-        super().__init__()
+    def __init__(self, *, rng: np.random.Generator | None = None):
+        super().__init__(rng=rng)
         self._queue = np.empty(0, dtype=np.uint64)
 
     def receive(self, ids, t: float) -> None:
@@ -161,14 +192,14 @@ class MixingStorage(StorageModel):
     Parameters
     ----------
     rng : numpy.random.Generator
-        The scenario's seeded generator (determinism).
+        The seeded generator of the clocks (determinism; default seed 0).
     """
 
     name = "mixing"
+    checkpointable = True
 
-    def __init__(self, rng: np.random.Generator | None = None):
-        super().__init__()
-        self.rng = rng if rng is not None else np.random.default_rng(0)
+    def __init__(self, *, rng: np.random.Generator | None = None):
+        super().__init__(rng=rng)
         self._order = np.empty(0, dtype=np.uint64)
         self._clock = np.empty(0)        # leaving clock of each held particle, ascending
         self._now = 0.0                  # clock of the last particle that left
@@ -204,30 +235,46 @@ class MixingStorage(StorageModel):
         self._order = self._order[ids.size:]
 
 
-STORAGE_MODELS: dict[str, str] = {
-    "fifo": "cosim.storage:FifoStorage",
-    "mixing": "cosim.storage:MixingStorage",
-    "rom": "surrogate.rom.storage:RomStorage",
-    "dem": "surrogate.dem_storage:DemStorage",
-}
-"""Storage models by name, cheapest first; values are ``module:Class``."""
+ENTRY_POINT_GROUP = "minetwin.storage"
+"""Entry-point group of the storage models: name = ``"module:Class"``."""
+
+
+def registered_models() -> dict:
+    """The registered storage models: name -> entry point (not yet imported), by name."""
+    return {ep.name: ep for ep in sorted(entry_points(group=ENTRY_POINT_GROUP),
+                                          key=lambda ep: ep.name)}
 
 
 def storage_class(name: str, field: str = "storage_model") -> type:
-    """The class of the storage model registered as ``name``."""
-    if name not in STORAGE_MODELS:
-        raise ValidationError(field, f"one of {list(STORAGE_MODELS)}", f"got {name!r}")
-    module, cls = STORAGE_MODELS[name].split(":")
-    return getattr(importlib.import_module(module), cls)
+    """The class of the storage model registered as ``name`` (imported now)."""
+    models = registered_models()
+    if name not in models:
+        raise ValidationError(field, f"one of {list(models)} (the registered storage models)",
+                              f"got {name!r}")
+    try:
+        cls = models[name].load()
+    except Exception as exc:  # a broken plug-in is reported, not raised through
+        raise ValidationError(field, f"a storage model that imports ({models[name].value})",
+                              f"{name!r} failed: {type(exc).__name__}: {exc}") from None
+    if not (isinstance(cls, type) and issubclass(cls, StorageModel)):
+        raise ValidationError(field, "a subclass of cosim.storage.StorageModel",
+                              f"{name!r} is registered as {models[name].value}")
+    return cls
+
+
+def storage_options(name: str) -> list[str]:
+    """The keyword options the storage model ``name`` takes (``rng`` aside: it is
+    the seeding rule, given by the caller)."""
+    import inspect
+
+    return [p for p, spec in inspect.signature(storage_class(name)).parameters.items()
+            if spec.kind in (spec.KEYWORD_ONLY, spec.POSITIONAL_OR_KEYWORD)
+            and p not in ("self", "rng")]
 
 
 def check_storage_options(name: str, options: dict, field: str = "options") -> None:
     """Refuse keyword options that the storage model ``name`` does not take, naming them."""
-    import inspect
-
-    accepted = [p for p, spec in inspect.signature(storage_class(name)).parameters.items()
-                if spec.kind in (spec.KEYWORD_ONLY, spec.POSITIONAL_OR_KEYWORD)
-                and p not in ("self", "rng")]
+    accepted = storage_options(name)
     for key in options:
         if key not in accepted:
             raise ValidationError(f"{field}.{key}", f"an option of the {name!r} storage model: "
@@ -236,8 +283,9 @@ def check_storage_options(name: str, options: dict, field: str = "options") -> N
                                   "unknown option")
 
 
-def make_storage(name: str, **options) -> StorageModel:
-    """Build the storage model called ``name`` with keyword ``options``."""
+def make_storage(name: str, *, rng: np.random.Generator | None = None,
+                 **options) -> StorageModel:
+    """Build the storage model called ``name`` with keyword ``options``, seeded by ``rng``."""
     cls = storage_class(name)
-    check_storage_options(name, {k: v for k, v in options.items() if k != "rng"})
-    return cls(**options)
+    check_storage_options(name, options)
+    return cls(rng=rng, **options)

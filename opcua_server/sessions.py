@@ -71,7 +71,7 @@ def _req(name: str) -> ua.NodeId:
     return ua.NodeId(getattr(ua.ObjectIds, f"{name}Request_Encoding_DefaultBinary"))
 
 
-CREATE, ACTIVATE, CLOSE = _req("CreateSession"), _req("ActivateSession"), _req("CloseSession")
+CREATE, ACTIVATE = _req("CreateSession"), _req("ActivateSession")
 SESSIONLESS = frozenset({CREATE, _req("FindServers"), _req("GetEndpoints"), _req("RegisterServer"),
                          _req("RegisterServer2"), _req("CloseSecureChannel")})
 READ, DELETE_SUBSCRIPTIONS, CALL = _req("Read"), _req("DeleteSubscriptions"), _req("Call")

@@ -17,8 +17,9 @@ arrays), numpy scalars and dtypes, numpy random generators (bit generator
 name and state), and instances of the project's own classes (``$obj``:
 ``module:qualname`` with the attributes), rebuilt with ``object.__new__`` and
 their ``__dict__``: no constructor, ``__reduce__`` or ``__setstate__`` runs,
-and only classes defined in the ``cosim`` and ``surrogate`` packages are
-accepted. Shared references (the mixing model's generator is the asset's)
+and only classes defined in the ``cosim`` and ``surrogate`` packages, or in the
+module of a registered storage model (``cosim.storage.registered_models``: a
+plug-in the user installed), are accepted. Shared references (the mixing model's generator is the asset's)
 stay shared (``$id`` / ``$ref``).
 """
 
@@ -100,7 +101,7 @@ class _Encoder:
                 "$rng": type(value.bit_generator).__name__,
                 "state": self.encode(value.bit_generator.state)})
         cls = type(value)
-        if cls.__module__.split(".")[0] in ALLOWED_PACKAGES and hasattr(value, "__dict__"):
+        if _trusted_module(cls.__module__) and hasattr(value, "__dict__"):
             return self.shared(value, lambda: {
                 "$obj": f"{cls.__module__}:{cls.__qualname__}",
                 "attrs": {k: self.encode(v) for k, v in vars(value).items()}})
@@ -239,10 +240,18 @@ class _Decoder:
         return value
 
 
+def _trusted_module(module_name: str) -> bool:
+    """A module of this project's packages, or the module of a registered storage model."""
+    from cosim.storage import registered_models
+
+    return (module_name.split(".")[0] in ALLOWED_PACKAGES
+            or module_name in {ep.module for ep in registered_models().values()})
+
+
 def _project_class(name: str) -> type:
     """The class ``module:qualname``, only from this project's packages."""
     module_name, _, qualname = str(name).partition(":")
-    if module_name.split(".")[0] not in ALLOWED_PACKAGES or not qualname.isidentifier() \
+    if not _trusted_module(module_name) or not qualname.isidentifier() \
             or module_name.endswith("__main__"):
         raise ValueError(f"class {name!r} is not one of this project's")
     cls = getattr(importlib.import_module(module_name), qualname, None)

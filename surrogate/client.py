@@ -580,8 +580,7 @@ class StockpileClient:
             "first_cycle_lag_s": self.lags_s[0] if self.lags_s else 0.0,
             "reconnects": self.reconnects, "history": self.asset.history(),
             # a ROM: the inputs outside its training ranges at its latest check
-            "out_of_training_range_now": list(getattr(self.asset.storage, "out_of_range_now",
-                                                      [])),
+            "out_of_training_range_now": list(self.asset.storage.out_of_range_now),
         }
         if self.o.summary:
             tmp = Path(f"{self.o.summary}.tmp")

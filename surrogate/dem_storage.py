@@ -12,7 +12,8 @@ clipped to the configured diameter range. The tracked mass, grade, hardness
 and size fractions travel with the disk; the tracking id is the store's
 extrinsic attribute ``tracking_id`` when it exists, else the particle id.
 After every ``step`` the DEM positions and velocities of the held particles
-are written back into the store (x, y; z = 0).
+are written back into the store (x, y; z = 0): the model has geometry
+(``has_geometry``), and views show the pile at its disks.
 
 ``predict(horizon, rate)`` rule: the feeder takes the held mass in the order
 of a *funnel distance* from the nearest outlet centre,
@@ -40,8 +41,9 @@ class DemStorage(StorageModel):
     config : DemConfig or dict or str, optional
         DEM configuration (a ``DemConfig``, a dict of its fields, or the path
         of a TOML file); default ``DemConfig()``.
-    seed : int
-        DEM seed (0).
+    rng : numpy.random.Generator, optional
+        Seeds the DEM's own generator (emission splitting): the DEM's seed is
+        drawn from it once (default ``default_rng(0)``).
     inlet : int
         Inlet at which received particles enter (0).
     outlet : int
@@ -53,16 +55,19 @@ class DemStorage(StorageModel):
     """
 
     name = "dem"
+    has_geometry = True
+    checkpointable = True
 
-    def __init__(self, config=None, seed: int = 0, inlet: int = 0, outlet: int = 0,
-                 funnel_slope: float = 0.5, dem: Dem | None = None):
-        super().__init__()
+    def __init__(self, config=None, *, inlet: int = 0, outlet: int = 0,
+                 funnel_slope: float = 0.5, dem: Dem | None = None,
+                 rng: np.random.Generator | None = None):
+        super().__init__(rng=rng)
         if dem is None:
             if isinstance(config, dict):
                 config = DemConfig.from_dict(config)
             elif isinstance(config, str):
                 config = DemConfig.from_toml(config)
-            dem = Dem(config, seed=seed)
+            dem = Dem(config, seed=int(self.rng.integers(2 ** 63)))
         self.dem = dem
         self.inlet = int(inlet)
         self.outlet = int(outlet)
@@ -86,6 +91,7 @@ class DemStorage(StorageModel):
         self.dem.emit(self.particles.mass[slots], self.particles.grade[slots],
                       self.particles.hardness[slots], self.particles.f[slots],
                       np.asarray(tracking).astype(np.uint64), inlet=self.inlet, ids=ids)
+        self.sync()
 
     def held_ids(self) -> np.ndarray:
         """Held ids in the predicted order of leaving (funnel distance)."""

@@ -28,14 +28,10 @@ Two parts:
     default, with its OpenAPI 3.0 document at ``/openapi.json``.
     ``serve_in_thread`` runs it beside a synchronous simulator.
 
-Units: SI (kg, m, s, kg/s); grade and hardness dimensionless. The pile is
-seen in the x-y plane (the 2D scene: x horizontal, y up). A storage model
-with geometry (``has_geometry = True``: ROM, DEM) is shown at its particles'
-positions and velocities. FIFO and mixing have no geometry; for them
-``schematic_layout`` draws the held particles in a half disc above the
-outlet by their rank in the order of leaving (the same picture the
-integration test's stockpile asset draws): an illustration of what leaves
-first, not a flow simulation. Bad query parameters get HTTP 400 with
+Units: SI (kg, m, s, kg/s); grade and hardness dimensionless. What is shown
+(totals, fields, particles, feed, layout, ``origin`` = source index) is
+``cosim.stockpile_view``, the same for the mine simulator's stockpile and the
+OPC UA stockpile asset. Bad query parameters get HTTP 400 with
 ``{"error": "FIELD: must be ...", "field": FIELD}``.
 """
 
@@ -50,11 +46,10 @@ from collections import deque
 import numpy as np
 from aiohttp import web
 
+from cosim import stockpile_view as view
 from cosim.errors import ValidationError
 from cosim.jsonio import plain as to_json
 from cosim.master import Component
-from cosim.sensors import observe
-from cosim.sizes import d_passing
 from surrogate.lots import ACTUAL_RATE_WINDOW_S, DischargeRate, LotLog
 
 TOTALS_KEYS = ("time_s", "held_mass_kg", "grade", "hardness", "d80_m", "particle_count",
@@ -106,16 +101,19 @@ class StorageView:
         Rows of the time series kept (oldest dropped first), default 100,000.
     display_radius_m : float
         Radius [m] of the schematic pile of a storage without geometry, default 10.
+    source_names : dict or None
+        Display name per source index (``origin``), default "source N".
     """
 
     def __init__(self, particles, storage, clock, discharge_rate, history_limit: int = 100_000,
-                 display_radius_m: float = 10.0):
+                 display_radius_m: float = 10.0, source_names: dict | None = None):
         self.particles = particles
         self.storage = storage
         self._clock = clock
         self._rate = discharge_rate
         self._history: deque = deque(maxlen=int(history_limit))
         self.display_radius_m = float(display_radius_m)
+        self.source_names = {int(k): str(v) for k, v in (source_names or {}).items()}
         self.lots = LotLog()
         self.discharge_actual = 0.0
         self._held = None  # (time, sorted ids, mass, grade, tracking) at the last record
@@ -132,40 +130,16 @@ class StorageView:
         return float(self._rate())
 
     def _held_slots(self) -> np.ndarray:
-        return self.particles.owned_by(self.storage.owner)
-
-    def _layout(self):
-        """``(slots, x, y, vx, vy)`` of the held particles in the display plane."""
-        store = self.particles
-        if getattr(self.storage, "has_geometry", False):
-            slots = self._held_slots()
-            return (slots, store.position[slots, 0], store.position[slots, 1],
-                    store.velocity[slots, 0], store.velocity[slots, 1])
-        order = self.storage.held_ids()
-        slots = store.slots(order)
-        return (slots, *schematic_layout(order, float(store.mass[slots].sum()),
-                                         self.discharge_rate, self.display_radius_m))
+        return view.held_slots(self.storage)
 
     @property
     def layout(self) -> str:
         """``particles`` (the model's own positions) or ``schematic``."""
-        return "particles" if getattr(self.storage, "has_geometry", False) else "schematic"
+        return view.layout(self.storage)
 
     def origin_names(self) -> dict:
-        """Display name per origin value (x of the position of origin [m])
-        of the particles held: left, right or centre of the mine, with x."""
-        store = self.particles
-        origins = np.unique(store.origin[self._held_slots(), 0])
-        if origins.size > 12:
-            return {}
-        middle = 0.5 * (origins.min() + origins.max()) if origins.size else 0.0
-        span = float(np.ptp(origins)) if origins.size else 0.0
-
-        def side(x):
-            if span == 0 or abs(x - middle) < 0.05 * span:
-                return "centre"
-            return "left" if x < middle else "right"
-        return {float(x): f"{side(x)} source (x = {x:g} m)" for x in origins}
+        """Display name per origin (source index, ``cosim.stockpile_view``) held."""
+        return view.origin_names(self.storage, self.source_names)
 
     def events(self, since: int = 0) -> list[dict]:
         """Lots in and out with ``seq > since`` (``surrogate.lots``)."""
@@ -206,22 +180,9 @@ class StorageView:
                           np.bincount(inverse, minlength=keys.size))
 
     def totals(self) -> dict:
-        """Held mass [kg], mass-weighted grade and hardness, D80 [m], count,
-        discharge setpoint and actual rate [kg/s] and time [s]; NaN averages
-        when empty."""
-        slots = self._held_slots()
-        store = self.particles
-        f = observe(store, "f", slots=slots)
-        return {
-            "time_s": self.time,
-            "held_mass_kg": float(store.mass[slots].sum()),
-            "grade": observe(store, "grade", slots=slots),
-            "hardness": observe(store, "hardness", slots=slots),
-            "d80_m": float("nan") if np.isnan(f).any() else float(d_passing(f, 0.8)),
-            "particle_count": int(slots.size),
-            "discharge_rate_kg_s": self.discharge_rate,
-            "discharge_actual_kg_s": self.discharge_actual,
-        }
+        """The totals row (``cosim.stockpile_view.totals``)."""
+        return view.totals(self.storage, time=self.time, discharge_rate=self.discharge_rate,
+                           discharge_actual=self.discharge_actual)
 
     def record(self) -> dict:
         """Append the current totals to the time series (call after each step)."""
@@ -239,111 +200,20 @@ class StorageView:
         return [row for row in self._history if row["time_s"] > since]
 
     def fields(self, nx: int, ny: int) -> dict:
-        """Mass [kg] per cell and mass-weighted grade, hardness, residence
-        time [s] and velocity vx, vy [m/s] on an nx-by-ny grid spanning the
-        held particles (arrays ny x nx, row 0 at the lowest y; NaN where a
-        cell is empty)."""
-        slots, x, y, vx, vy = self._layout()
-        store = self.particles
-        mass = store.mass[slots]
-        x_edges = _edges(x, nx)
-        y_edges = _edges(y, ny)
-        quantities = {
-            "grade": store.grade[slots],
-            "hardness": store.hardness[slots],
-            "residence_time": self.time - store.time_in_owner[slots],
-            "vx": vx,
-            "vy": vy,
-        }
-
-        def binned(weights):
-            counts, _, _ = np.histogram2d(x, y, bins=(x_edges, y_edges), weights=weights)
-            return counts.T
-
-        cell_mass = binned(mass)
-        out = {"x_edges": x_edges, "y_edges": y_edges, "mass": cell_mass}
-        with np.errstate(invalid="ignore", divide="ignore"):
-            for name, values in quantities.items():
-                out[name] = np.where(cell_mass > 0, binned(mass * values) / cell_mass, np.nan)
-        return out
+        """Spatial fields on an ny x nx grid (``cosim.stockpile_view.fields``)."""
+        return view.fields(self.storage, nx, ny, time=self.time,
+                           discharge_rate=self.discharge_rate, radius=self.display_radius_m)
 
     def particle_table(self, limit: int, offset: int) -> dict:
-        """Page of held particles ordered by id: id, tracking_id (the
-        ``tracking_id`` attribute, else the id), x, y [m], grade, hardness,
-        residence_time [s], origin (x of the position of origin [m]), and
-        ``total`` (held count)."""
-        store = self.particles
-        slots, x, y, _, _ = self._layout()
-        page = np.argsort(store.id[slots], kind="stable")[offset: offset + limit]
-        slots = slots[page]
-        ids = store.id[slots]
-        tracking = (store.attribute("tracking_id")[slots]
-                    if "tracking_id" in store.attribute_names else ids)
-        return {
-            "total": int(x.size),
-            "id": ids,
-            "tracking_id": tracking,
-            "x": x[page],
-            "y": y[page],
-            "grade": store.grade[slots],
-            "hardness": store.hardness[slots],
-            "residence_time": self.time - store.time_in_owner[slots],
-            "origin": store.origin[slots, 0],
-        }
+        """A page of held particles by id (``cosim.stockpile_view.particle_table``)."""
+        return view.particle_table(self.storage, limit, offset, time=self.time,
+                                   discharge_rate=self.discharge_rate,
+                                   radius=self.display_radius_m)
 
     def predicted_feed(self, horizon_s: float) -> dict:
-        """The feed the storage model predicts for the next ``horizon_s`` [s]
-        at the current rate (paper section "Predicting the properties of the
-        mill feed"): mass [kg], mass-weighted grade, hardness and D80 [m],
-        particle count and the tracking ids expected."""
-        ids, share = self.storage.predict(horizon_s, self.discharge_rate)
-        return self._feed_summary(ids, share)
-
-    def _feed_summary(self, ids, share) -> dict:
-        store = self.particles
-        slots = store.slots(ids)
-        mass = float(share.sum())
-        if mass > 0:
-            grade = float(share @ store.grade[slots]) / mass
-            hardness = float(share @ store.hardness[slots]) / mass
-            d80 = float(d_passing(share @ store.f[slots] / mass, 0.8))
-        else:
-            grade = hardness = d80 = float("nan")
-        tracking = (store.attribute("tracking_id")[slots]
-                    if "tracking_id" in store.attribute_names else ids)
-        return {"mass_kg": mass, "grade": grade, "hardness": hardness, "d80_m": d80,
-                "particle_count": int(ids.size), "tracking_ids": np.unique(tracking)}
-
-
-def schematic_layout(order, held_mass: float, discharge_rate: float, radius: float):
-    """Display positions and velocities for a storage model without geometry.
-
-    The particle whose rank in the order of leaving ``order`` is a fraction
-    ``s`` of the held particles sits at radius ``R sqrt(s)`` from the outlet
-    at the origin (area-uniform in the half disc of radius ``R`` [m]), at
-    an angle in [0, pi] fixed by its id (golden-ratio hash), and moves
-    radially at d(R sqrt(s))/dt with ds/dt = -discharge_rate / held_mass.
-    Returns ``x, y`` [m] and ``vx, vy`` [m/s].
-    """
-    n = len(order)
-    s = (np.arange(n) + 0.5) / max(n, 1)
-    theta = np.pi * np.mod(np.asarray(order, dtype=np.float64) * 0.6180339887498949, 1.0)
-    r = radius * np.sqrt(s)
-    speed = -radius * (discharge_rate / max(held_mass, 1e-300)) / (2.0 * np.sqrt(s))
-    cos, sin = np.cos(theta), np.sin(theta)
-    return r * cos, r * sin, speed * cos, speed * sin
-
-
-def _edges(values: np.ndarray, cells: int) -> np.ndarray:
-    """Cell edges spanning ``values``; 1 m wide span around a degenerate one."""
-    if values.size == 0:
-        low, high = 0.0, 1.0
-    else:
-        low, high = float(values.min()), float(values.max())
-    if not high - low > 1e-9:
-        low, high = low - 0.5, high + 0.5
-    # widen a hair so the largest value falls inside the last cell
-    return np.linspace(low, high + 1e-9 * max(1.0, abs(high)), cells + 1)
+        """The feed predicted for the next ``horizon_s`` [s] at the current rate
+        (``cosim.stockpile_view.predicted_feed``)."""
+        return view.predicted_feed(self.storage, horizon_s, self.discharge_rate)
 
 
 # ----------------------------------------------------------- query parameters
@@ -567,6 +437,8 @@ class RestComponent(Component):
         Simulated seconds per wall second, default None.
     display_radius_m : float
         Schematic pile radius [m] for models without geometry, default 10.
+    source_names : dict or None
+        Display name per source index (``origin``), default "source N".
     """
 
     name = "rest"
@@ -575,14 +447,14 @@ class RestComponent(Component):
 
     def __init__(self, particles, storage, discharge_rate, *, host: str = "127.0.0.1",
                  port: int = 0, realtime_factor: float | None = None,
-                 display_radius_m: float = 10.0):
+                 display_radius_m: float = 10.0, source_names: dict | None = None):
         super().__init__()
         if realtime_factor is not None and not realtime_factor > 0:
             raise ValidationError("realtime_factor", "> 0 or None", f"got {realtime_factor!r}")
         self.time = 0.0
         self.realtime_factor = realtime_factor
         self.view = StorageView(particles, storage, lambda: self.time, discharge_rate,
-                                display_radius_m=display_radius_m)
+                                display_radius_m=display_radius_m, source_names=source_names)
         self.view.record()
         self.lock = threading.Lock()
         self.gate = _LockGate(self.lock)
@@ -619,11 +491,17 @@ def serve_simulation(simulation, *, asset: str = "stockpile", **options) -> Rest
     """Serve the storage asset ``asset`` of a built mine-simulator ``Simulation``.
 
     ``options`` go to ``RestComponent`` (host, port, realtime_factor,
-    display_radius_m). Call before the simulation runs.
+    display_radius_m). The origins are named after the plant's sources (their
+    owner indices, ``cosim.stockpile_view``). Call before the simulation runs.
     """
+    from cosim.assets.source import Source
+
     pile = simulation.assets[asset]
+    names = {a.owner: f"source {a.name}" for a in simulation.assets.values()
+             if isinstance(a, Source)}
     return RestComponent.attach(simulation.master, simulation.plant.particles, pile.model,
-                                lambda: pile.outputs()["discharge_rate_kg_s"], **options)
+                                lambda: pile.outputs()["discharge_rate_kg_s"],
+                                source_names=names, **options)
 
 
 class _LockGate(Component):
@@ -745,13 +623,18 @@ OPENAPI = {
                            "time_s": {"type": "number"}, "layout": _LAYOUT,
                            "origin_names": {"type": "array", "items": {
                                "type": "object", "required": ["origin", "name"],
-                               "properties": {"origin": {"type": "number"},
+                               "properties": {"origin": {"type": "integer", "minimum": -1},
                                               "name": {"type": "string"}}}},
                            "total": {"type": "integer", "minimum": 0},
                            "id": _INT_LIST, "tracking_id": _INT_LIST,
                            "x": _NUM_LIST, "y": _NUM_LIST, "grade": _NUM_LIST,
-                           "hardness": _NUM_LIST, "residence_time": _NUM_LIST,
-                           "origin": _NUM_LIST}},
+                           "mass": _NUM_LIST, "hardness": _NUM_LIST,
+                           "residence_time": _NUM_LIST,
+                           "origin": {"type": "array",
+                                      "items": {"type": "integer", "minimum": -1},
+                                      "description": "index of the source the particle was "
+                                                     "mined at (-1: unknown); names in "
+                                                     "origin_names"}}},
             [_param("limit", {"type": "integer", "minimum": 1, "maximum": MAX_PARTICLES_PAGE},
                     "page size (default 5000)"),
              _param("offset", {"type": "integer", "minimum": 0, "maximum": 2**31 - 1},

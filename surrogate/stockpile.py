@@ -10,28 +10,23 @@ simulator receive information of the material that enters the outgoing
 conveyer. That information include tracking-ids, mass and ore grade."
 
 The asset owns its own ``ParticleStore`` and a storage model picked by name
-(``cosim.storage.make_storage``: ``fifo``, ``mixing`` now; ``rom``/``dem``
-once registered). Every particle carries the inbound bin's tracking id as the
+(``cosim.storage.make_storage``: any registered model, ``fifo``, ``mixing``,
+``rom``, ``dem`` or a plug-in's), seeded by the asset's generator. Every particle carries the inbound bin's tracking id as the
 uint64 extrinsic attribute ``tracking_id`` and its source index as ``source``.
 
-Display geometry: FIFO and mixing have no geometry. For them the particles
-get *schematic* positions in a 2-D pile cross-section (a half disc of radius
-``pile_radius_m`` above the outlet at the origin, x horizontal, y up): a
-particle whose rank in the model's order of leaving is a fraction ``s`` of
-the held particles sits at radius ``R sqrt(s)`` (area-uniform), at an angle
-fixed by its id, and moves radially towards the outlet at the rate the
-feeder drains the pile (``d(R sqrt(s))/dt`` with ``ds/dt = -rate / held
-mass``). These positions only illustrate the order of leaving; they are not
-a flow simulation. A storage model with real geometry (attribute
-``has_geometry = True``, the ROM and DEM) keeps its own positions and
-velocities, which the asset then reports as they are.
+What the asset shows (totals, fields, particle table, predicted feed, layout)
+is ``cosim.stockpile_view``, the same functions the mine simulator's REST view
+calls: a model without geometry (FIFO, mixing) is drawn in the schematic half
+disc of radius ``pile_radius_m``, a model with ``has_geometry`` (ROM, DEM) at its
+own positions; ``origin`` is the source index of the inbound bin.
 
 Parameters (``StockpileAsset``)
 -------------------------------
 model : str
     Storage model name, default ``"fifo"``.
 seed : int
-    Seed of the asset's generator (mixing order, display angles), default 0.
+    Seed of the asset's generator, which the storage model draws from (its
+    ``rng``), default 0.
 particle_mass_kg : float
     Target pseudo-particle mass [kg], default 100 (paper: ~100 kg each);
     a bin of mass m becomes ceil(m / particle_mass_kg) equal particles.
@@ -55,9 +50,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from cosim import stockpile_view as view
 from cosim.errors import ValidationError, check_finite_range
 from cosim.particles import ParticleStore
-from cosim.sizes import d_passing, rosin_rammler
+from cosim.sizes import rosin_rammler
 from cosim.storage import check_discharge_rate, make_storage
 from surrogate.lots import ColumnRing, DischargeRate, LotLog
 
@@ -95,10 +91,7 @@ class StockpileAsset:
             "pile_radius_m", pile_radius_m, 0.0, low_open=True, unit="m"))
         self.model_name = model
         self.rng = np.random.default_rng(seed)
-        options = dict(storage_options or {})
-        if model == "mixing":
-            options.setdefault("rng", self.rng)
-        self.storage = make_storage(model, **options)
+        self.storage = make_storage(model, rng=self.rng, **(storage_options or {}))
         self.particles = ParticleStore(capacity=4096, first_id=1)
         self.particles.add_attribute("tracking_id", np.uint64, 0)
         self.particles.add_attribute("source", np.int64, -1)
@@ -198,19 +191,9 @@ class StockpileAsset:
         return {int(t): float(m) for t, m in zip(unique, mass)}
 
     def totals(self) -> dict:
-        """Virtual sensors over the whole pile (mass-weighted averages)."""
-        store = self.particles
-        held = float(store.mass.sum())
-        if held > 0:
-            w = store.mass / held
-            grade, hardness = float(w @ store.grade), float(w @ store.hardness)
-            d80 = float(d_passing(w @ store.f, 0.8))
-        else:
-            grade = hardness = d80 = float("nan")
-        return {"time_s": self.time, "held_mass_kg": held, "grade": grade,
-                "hardness": hardness, "d80_m": d80, "particle_count": len(store),
-                "discharge_rate_kg_s": self.discharge_rate,
-                "discharge_actual_kg_s": self.discharge_actual}
+        """Virtual sensors over the whole pile (``cosim.stockpile_view.totals``)."""
+        return view.totals(self.storage, time=self.time, discharge_rate=self.discharge_rate,
+                           discharge_actual=self.discharge_actual)
 
     def history(self, since: float = -np.inf) -> list[dict]:
         """Totals rows recorded after each step with ``time_s > since``."""
@@ -226,108 +209,24 @@ class StockpileAsset:
     @property
     def layout(self) -> str:
         """``particles`` (the model's own positions) or ``schematic``."""
-        return "particles" if getattr(self.storage, "has_geometry", False) else "schematic"
+        return view.layout(self.storage)
 
     def origin_names(self) -> dict:
-        """Display name per origin value of ``particle_table`` (the source index)."""
-        sources = np.unique(self.particles.attribute("source"))
-        return {int(s): self.source_names.get(int(s), f"source {int(s)}") for s in sources}
-
-    # ------------------------------------------------------------- display
-    def _update_display(self) -> None:
-        """Schematic positions and velocities for models without geometry."""
-        if getattr(self.storage, "has_geometry", False) or len(self.particles) == 0:
-            return
-        store = self.particles
-        order = self.storage.held_ids()
-        slots = store.slots(order)
-        n = order.size
-        s = (np.arange(n) + 0.5) / n
-        # angle fixed per particle: golden-ratio hash of its id
-        theta = np.pi * np.mod(order.astype(np.float64) * 0.6180339887498949, 1.0)
-        radius = self.pile_radius_m * np.sqrt(s)
-        held = max(float(store.mass[slots].sum()), 1e-300)
-        speed = -self.pile_radius_m * (self.discharge_rate / held) / (2.0 * np.sqrt(s))
-        store.position[slots, 0] = radius * np.cos(theta)
-        store.position[slots, 1] = radius * np.sin(theta)
-        store.position[slots, 2] = 0.0
-        store.velocity[slots, 0] = speed * np.cos(theta)
-        store.velocity[slots, 1] = speed * np.sin(theta)
-        store.velocity[slots, 2] = 0.0
-
-    def _extent(self) -> tuple[float, float, float, float]:
-        if getattr(self.storage, "has_geometry", False) and len(self.particles):
-            pos = self.particles.position
-            return (float(pos[:, 0].min()), float(pos[:, 0].max()) + 1e-9,
-                    float(pos[:, 1].min()), float(pos[:, 1].max()) + 1e-9)
-        r = self.pile_radius_m
-        return -r, r, 0.0, r
+        """Display name per origin (the source index) of the particles held."""
+        return view.origin_names(self.storage, self.source_names)
 
     def fields(self, nx: int = 32, ny: int = 16) -> dict:
-        """Spatial fields on an ny x nx grid over the pile (NaN where empty).
-
-        ``mass`` [kg per cell]; ``grade``, ``hardness``, ``residence_time``
-        [s], ``vx``, ``vy`` [m/s] mass-weighted per cell.
-        """
-        for name, value in (("nx", nx), ("ny", ny)):
-            if not 1 <= int(value) <= 1024:
-                raise ValidationError(name, "an integer in [1, 1024]", f"got {value!r}")
-        self._update_display()
-        x0, x1, y0, y1 = self._extent()
-        x_edges = np.linspace(x0, x1, int(nx) + 1)
-        y_edges = np.linspace(y0, y1, int(ny) + 1)
-        store = self.particles
-        x, y, m = store.position[:, 0], store.position[:, 1], store.mass
-
-        def grid(weights):
-            return np.histogram2d(y, x, bins=(y_edges, x_edges), weights=weights)[0]
-
-        mass = grid(m)
-        empty = mass <= 0
-        out = {"x_edges": x_edges, "y_edges": y_edges,
-               "mass": np.where(empty, np.nan, mass)}
-        residence = self.time - store.time_in_owner
-        for name, values in (("grade", store.grade), ("hardness", store.hardness),
-                             ("residence_time", residence), ("vx", store.velocity[:, 0]),
-                             ("vy", store.velocity[:, 1])):
-            total = grid(m * values)
-            out[name] = np.where(empty, np.nan, total / np.where(empty, 1.0, mass))
-        return out
+        """Spatial fields on an ny x nx grid over the pile (``cosim.stockpile_view.fields``)."""
+        return view.fields(self.storage, nx, ny, time=self.time,
+                           discharge_rate=self.discharge_rate, radius=self.pile_radius_m)
 
     def particle_table(self, limit: int = 1000, offset: int = 0) -> dict:
-        """Rows ``offset .. offset+limit`` of the held particles, as arrays.
-
-        ``origin`` is the source index of the bin the particle came from.
-        """
-        for name, value, low in (("limit", limit, 0), ("offset", offset, 0)):
-            if int(value) < low:
-                raise ValidationError(name, f"an integer >= {low}", f"got {value!r}")
-        self._update_display()
-        store = self.particles
-        rows = slice(int(offset), int(offset) + int(limit))
-        return {"id": store.id[rows].copy(),
-                "tracking_id": store.attribute("tracking_id")[rows].copy(),
-                "x": store.position[rows, 0].copy(), "y": store.position[rows, 1].copy(),
-                "mass": store.mass[rows].copy(),
-                "grade": store.grade[rows].copy(), "hardness": store.hardness[rows].copy(),
-                "residence_time": self.time - store.time_in_owner[rows],
-                "origin": store.attribute("source")[rows].copy(),
-                "total": len(store)}
+        """Rows ``offset .. offset+limit`` of the held particles by id
+        (``cosim.stockpile_view.particle_table``; ``origin``: the source index)."""
+        return view.particle_table(self.storage, limit, offset, time=self.time,
+                                   discharge_rate=self.discharge_rate, radius=self.pile_radius_m)
 
     def predicted_feed(self, horizon_s: float) -> dict:
         """Feed predicted to leave within ``horizon_s`` at the current setpoint
-        (paper section "Predicting the properties of the mill feed")."""
-        horizon_s = float(check_finite_range("horizon_s", horizon_s, 0.0, unit="s"))
-        ids, share = self.storage.predict(horizon_s, self.discharge_rate)
-        store = self.particles
-        slots = store.slots(ids)
-        mass = float(share.sum())
-        if mass > 0:
-            w = share / mass
-            grade, hardness = float(w @ store.grade[slots]), float(w @ store.hardness[slots])
-            d80 = float(d_passing(w @ store.f[slots], 0.8))
-        else:
-            grade = hardness = d80 = float("nan")
-        tids = np.unique(store.attribute("tracking_id")[slots])
-        return {"horizon_s": horizon_s, "mass_kg": mass, "grade": grade,
-                "hardness": hardness, "d80_m": d80, "tracking_ids": tids}
+        (``cosim.stockpile_view.predicted_feed``)."""
+        return view.predicted_feed(self.storage, horizon_s, self.discharge_rate)

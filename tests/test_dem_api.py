@@ -111,7 +111,8 @@ def test_dem_storage_model_keeps_ids_and_mass_and_syncs_positions():
     rng = np.random.default_rng(1)
     ids = store.add(mass=rng.uniform(60, 140, 40), f=sizes.swebrec(), grade=0.3,
                     hardness=1.0, owner=owner)
-    model = make_storage("dem", config=config_for_particles(40).to_dict(), seed=0)
+    model = make_storage("dem", config=config_for_particles(40).to_dict(),
+                         rng=np.random.default_rng(0))
     model.bind(store, owner)
     model.receive(ids, 0.0)
     total = store.total_mass(owner)

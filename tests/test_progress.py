@@ -1,4 +1,5 @@
-"""Progress lines (cosim.progress): labels, speed and ETA, plain lines in logs."""
+"""Progress lines (cosim.progress, by tqdm): labels, speed and remaining time, plain
+lines in logs, frames on a terminal."""
 
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ def clock(monkeypatch):
     return fake
 
 
-def test_log_gets_plain_lines_with_label_speed_and_eta(clock):
+def test_log_gets_plain_throttled_lines_with_label_speed_and_remaining_time(clock):
     log = io.StringIO()
     lines = Progress("reference run", 1200.0, stream=log, log_every_s=10.0)
     lines.update(0.5)
@@ -42,37 +43,36 @@ def test_log_gets_plain_lines_with_label_speed_and_eta(clock):
     clock.now += 10.0
     lines.close()
     text = log.getvalue()
-    assert "\r" not in text
+    assert "\r" not in text and text.isascii()
     first, second, last = text.splitlines()
-    assert first.startswith("reference run: [") and "t = 0.5 / 1200 s (0 %)" in first
-    assert "real time" not in first and "ETA" not in first  # nothing measured yet
-    # speed and ETA from the first line on (start-up excluded): 599.5 s in 10 s
-    assert "t = 600.0 / 1200 s (50 %)" in second
-    assert "60x real time" in second and "10 s elapsed" in second and "ETA 10 s" in second
-    assert "30x real time, 20 s elapsed, ETA 20 s" in last
+    assert first.startswith("reference run:   0%|") and "0.5/1200.0" in first
+    assert "?sim-s/s" in first  # nothing measured yet
+    # speed and remaining time from the first line on (start-up excluded): 599.5 s in 10 s
+    assert "50%|#####     | 600.0/1200.0 [00:10<00:10, 59.95sim-s/s]" in second
+    assert "[00:20<00:20, 29.98sim-s/s]" in last
 
 
-def test_terminal_gets_frames_and_a_final_line_break(clock):
+def test_terminal_gets_tqdm_frames_and_a_final_line_break():
     terminal = Terminal()
-    lines = Progress("simulate", 100.0, stream=terminal)
+    lines = Progress("simulate", 100.0, stream=terminal, every_s=0.0)
     lines.update(10.0)
-    clock.now += 2.0
     lines.update(50.0)
     lines.note("a message")
+    lines.close()
     text = terminal.getvalue()
-    assert text.count("\r") == 2
-    assert text.endswith("\nsimulate: a message\n")
+    assert text.count("\r") >= 2 and "simulate:  50%|" in text
+    assert "simulate: a message\n" in text and text.endswith("\n")
 
 
-def test_unknown_total_has_no_bar_and_no_eta(clock):
+def test_unknown_total_has_no_bar_and_no_remaining_time(clock):
     log = io.StringIO()
     lines = Progress("dem pile", None, stream=log, log_every_s=1.0)
     lines.update(0.0, "0 particles")
     clock.now += 3.0
     lines.update(1.5, "12 particles")
     first, second = log.getvalue().splitlines()
-    assert first == "dem pile: t = 0.0 s, 0 s elapsed, 0 particles"
-    assert second == "dem pile: t = 1.5 s, 0.5x real time, 3 s elapsed, 12 particles"
+    assert first == "dem pile: 0.0 s [00:00, ?sim-s/s, 0 particles]"
+    assert second == "dem pile: 1.5 s [00:03,  2.00s/sim-s, 12 particles]"
 
 
 class Idle(Component):
@@ -89,8 +89,8 @@ def test_master_reports_with_its_label_in_plain_lines(capsys):
     err = capsys.readouterr().err
     assert "\r" not in err
     lines = err.splitlines()
-    assert lines[0].startswith("unit run: [") and lines[-1].startswith("unit run: [")
-    assert "t = 5.0 / 5 s (100 %)" in lines[-1]
+    assert lines[0].startswith("unit run: ") and lines[-1].startswith("unit run: 100%|")
+    assert "5.0/5.0" in lines[-1]
 
 
 def test_a_run_past_its_estimated_total_says_so(clock):
@@ -98,4 +98,4 @@ def test_a_run_past_its_estimated_total_says_so(clock):
     lines = Progress("dem pile", 12.5, stream=log)
     clock.now += 2.0
     lines.update(13.0, force=True)
-    assert "t = 13.0 s (estimated 12.5 s)" in log.getvalue() and "ETA" not in log.getvalue()
+    assert log.getvalue() == "dem pile: 13.0 s [00:02, ?sim-s/s, estimated 12.5 s]\n"

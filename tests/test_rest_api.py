@@ -26,6 +26,7 @@ from cosim.errors import ValidationError
 from cosim.particles import ParticleStore
 from cosim.sizes import d_passing
 from cosim.storage import MixingStorage, make_storage
+from surrogate.dem_storage import DemStorage
 from surrogate.rest import OPENAPI, RestComponent, StorageView, serve_in_thread
 from surrogate.rom.container import Container
 from surrogate.rom.grid import Grid, mass_field
@@ -48,11 +49,25 @@ def _fed_stockpile() -> StockpileAsset:
     return asset
 
 
+def _dem_stockpile() -> StockpileAsset:
+    """A DEM stockpile (it has geometry) that received 6 bins from two sources."""
+    from surrogate.dem.builders import config_for_particles
+
+    asset = StockpileAsset("dem", seed=3, storage_options={
+        "config": config_for_particles(36).to_dict()})
+    for k in range(6):
+        asset.receive_bin(200 + k, 600.0, (0.2, 0.8)[k % 2], 1.0, source=k % 2)
+        asset.step(0.5)
+    asset.set_discharge_rate(RATE_KG_S)
+    asset.step(1.0)
+    return asset
+
+
 def _mixing_view() -> StorageView:
     """A storage view over mixing storage with particles spread in x-y."""
     rng = np.random.default_rng(7)
     store = ParticleStore()
-    storage = MixingStorage(np.random.default_rng(1)).bind(store, owner=4)
+    storage = MixingStorage(rng=np.random.default_rng(1)).bind(store, owner=4)
     count = 300
     f = np.zeros(16)
     f[[9, 10, 11]] = (0.2, 0.5, 0.3)
@@ -130,12 +145,12 @@ def _rom_view() -> StorageView:
 def _held(asset):
     """Held particles' slots of either kind of asset."""
     store = asset.particles
-    owner = getattr(asset.storage, "owner")
+    owner = asset.storage.owner
     return store, store.owned_by(owner)
 
 
-BUILDERS = {"stockpile_asset": _fed_stockpile, "mixing_view": _mixing_view,
-            "rom_view": _rom_view}
+BUILDERS = {"stockpile_asset": _fed_stockpile, "dem_stockpile": _dem_stockpile,
+            "mixing_view": _mixing_view, "rom_view": _rom_view}
 
 
 @pytest.fixture(scope="module", params=list(BUILDERS))
@@ -247,12 +262,35 @@ def test_particles_pages_cover_every_held_particle_once(served):
     assert first["grade"] == [store.grade[slot]]
     everything = get(base, f"/particles?limit={slots.size}")[1]
     x, y = np.array(everything["x"]), np.array(everything["y"])
-    if getattr(asset.storage, "has_geometry", False):  # the model's own positions
+    assert everything["layout"] == ("particles" if asset.storage.has_geometry else "schematic")
+    # origin is the source index in every view; the bins' sources are 0 and 1
+    order = store.slots(everything["id"])
+    expected = (store.attribute("source")[order] if "source" in store.attribute_names
+                else np.full(order.size, -1))
+    assert everything["origin"] == expected.tolist()
+    names = {o["origin"]: o["name"] for o in everything["origin_names"]}
+    assert set(names) == set(expected.tolist())
+    if asset.storage.has_geometry:  # the model's own positions
         order = store.slots(everything["id"])
         np.testing.assert_array_equal(x, store.position[order, 0])
         np.testing.assert_array_equal(y, store.position[order, 1])
     else:  # schematic half disc of radius 10 m above the outlet
         assert (np.hypot(x, y) <= 10.0 + 1e-9).all() and (y >= -1e-9).all()
+
+
+def test_a_dem_pile_is_drawn_at_its_disks_not_as_a_schematic():
+    """DemStorage declares has_geometry: the view shows the DEM's own positions."""
+    asset = _dem_stockpile()
+    assert asset.layout == "particles"
+    table = asset.particle_table(limit=10_000)
+    dem = asset.storage.dem
+    at = {int(i): k for k, i in enumerate(dem.id)}
+    rows = [at[int(i)] for i in table["id"]]
+    np.testing.assert_array_equal(table["x"], dem.pos[rows, 0])
+    np.testing.assert_array_equal(table["y"], dem.pos[rows, 1])
+    grid = asset.fields(nx=6, ny=4)
+    assert grid["x_edges"][0] <= dem.pos[:, 0].min() and grid["x_edges"][-1] > dem.pos[:, 0].max()
+    assert grid["mass"].sum() == pytest.approx(dem.mass.sum(), rel=1e-12)
 
 
 def test_particles_thinned(served):
@@ -268,7 +306,10 @@ def test_particles_thinned(served):
 def test_velocity_field_points_to_the_outlet(served):
     """The funnel (ROM) and the schematic drain both move material towards
     the outlet at the origin: inward radial velocity in every filled cell."""
-    _, base, _ = served
+    asset, base, _ = served
+    if isinstance(asset.storage, DemStorage):
+        pytest.skip("a DEM's velocities are one trajectory of a chaotic simulation (disks "
+                    "still falling and bouncing): no single-run assertion on them")
     body = get(base, "/fields?nx=8&ny=4&field=mass,velocity")[1]
     xc = np.convolve(body["x_edges"], [0.5, 0.5], "valid")
     yc = np.convolve(body["y_edges"], [0.5, 0.5], "valid")

@@ -40,6 +40,14 @@ def test_simulate_serves_its_stockpile_over_rest_while_running(tmp_path):
         second = _get(url + "/totals")
         assert second["time_s"] > first["time_s"], "simulation time did not advance"
         assert second["held_mass_kg"] >= 0
+        # origin is the index of the source a particle was mined at, named after it
+        table = {"total": 0}
+        while not table["total"] and time.monotonic() < deadline + 30:
+            table = _get(url + "/particles?limit=50000")
+            time.sleep(0.5)
+        names = {o["origin"]: o["name"] for o in table["origin_names"]}
+        assert table["total"] and set(table["origin"]) == set(names)
+        assert set(names.values()) <= {"source left", "source right"}
         stdout, _ = process.communicate(timeout=60)
     finally:
         if process.poll() is None:

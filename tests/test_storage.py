@@ -44,8 +44,8 @@ def test_fifo_is_first_in_first_out():
 
 
 def test_mixing_is_seeded_and_mixes():
-    a = MixingStorage(np.random.default_rng(5))
-    b = MixingStorage(np.random.default_rng(5))
+    a = MixingStorage(rng=np.random.default_rng(5))
+    b = MixingStorage(rng=np.random.default_rng(5))
     _, ids = filled(a)
     filled(b)
     assert a.held_ids().tolist() == b.held_ids().tolist()

@@ -203,10 +203,10 @@ def storage_models() -> tuple[list[tuple[str, dict]], dict]:
     """(name, options) of the storage models to compare, and the ones skipped with why."""
     import os
 
-    from cosim.storage import STORAGE_MODELS
+    from cosim.storage import registered_models
 
     models, skipped = [("fifo", {}), ("mixing", {})], {}
-    if "rom" in STORAGE_MODELS:
+    if "rom" in registered_models():
         path = os.environ.get(ROM_MODEL_ENV)
         if path and Path(path).is_file():
             models.append(("rom", {"model": path}))

@@ -47,9 +47,6 @@ from cosim.analyses.tracking import F_COLUMNS, moving_average, occupancy_sum, wi
 from cosim.errors import ValidationError
 from cosim.sizes import d_passing
 
-JOULES_PER_KG_PER_KWH_PER_T = 3600.0
-"""1 kWh/t = 3600 J/kg."""
-
 
 def bond_work_index(work, f80, p80) -> np.ndarray:
     """BWI [kWh/t] from specific work ``work`` [J/kg] and F80, P80 [m].

@@ -26,6 +26,7 @@ from cosim.errors import ValidationError
 from cosim.events import PARTICLE_FIELDS
 from cosim.master import Component
 from cosim.sizes import N_CLASSES, mean_diameter
+from cosim.stockpile_view import SOURCE_ATTRIBUTE
 
 
 EVENT_FIELDS = ("id",) + PARTICLE_FIELDS
@@ -46,6 +47,10 @@ class Plant:
     rng : numpy.random.Generator
         The scenario's seeded generator.
 
+    The store gets the extrinsic particle attribute ``source``: the owner
+    index of the ``Source`` asset that created the particle (the ``origin``
+    views show, ``cosim.stockpile_view``).
+
     Attributes ``mass_in`` [kg] (all mass that appeared) and ``mass_out``
     [kg] (all mass that left as product) are the plant-wide balance terms;
     ``removed_ids`` lists the particles that left the plant entirely.
@@ -53,6 +58,8 @@ class Plant:
 
     def __init__(self, particles, events=None, rng: np.random.Generator | None = None):
         self.particles = particles
+        if SOURCE_ATTRIBUTE not in particles.attribute_names:  # origin of what is shown
+            particles.add_attribute(SOURCE_ATTRIBUTE, np.int64, -1)
         self.events = events
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self.owner_names: list[str] = []
@@ -70,13 +77,6 @@ class Plant:
             raise ValidationError("name", "unique among the plant's assets", f"{name!r} exists")
         self.owner_names.append(name)
         return len(self.owner_names) - 1
-
-    def owner_of(self, name: str) -> int:
-        """Owner index of the holder called ``name``."""
-        try:
-            return self.owner_names.index(name)
-        except ValueError:
-            raise ValidationError("owner", f"one of {self.owner_names}", f"got {name!r}") from None
 
     def record(self, type: str, asset: str, t: float, slots, location) -> None:
         """Record a macro-tracking event about ``slots`` (skipped when empty).
@@ -144,10 +144,6 @@ class Asset(Component):
     @property
     def particles(self):
         return self.plant.particles
-
-    def held_slots(self) -> np.ndarray:
-        """Slots of the particles this asset holds."""
-        return np.flatnonzero(self.particles.owner == self.owner)
 
     def held_mass(self) -> float:
         return float(self.particles.mass[self.particles.owner == self.owner].sum())

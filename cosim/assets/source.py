@@ -132,7 +132,8 @@ class Source(Asset):
         ids = self.particles.add(
             mass=masses, f=f, grade=self.grade, hardness=self.hardness(local[:, 0]),
             position=self.location, origin=self.origin + local,
-            origin_block=self.block_model.cell_of(local), owner=self.owner, time=t)
+            origin_block=self.block_model.cell_of(local), owner=self.owner, time=t,
+            source=self.owner)
         self.plant.mass_in += float(masses.sum())
         self.plant.particles_created += count
         self.plant.record("appear", self.name, t, self.particles.slots(ids), self.location)

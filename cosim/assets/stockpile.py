@@ -9,7 +9,7 @@ simulation": micro-tracking inside storage needs a model ranging from
 first-in-first-out or perfect mixing to a physics-based flow model.
 
 Model. Which particles leave, and when, is decided by a storage model from
-``cosim.storage.STORAGE_MODELS`` chosen by name ("fifo", "mixing", and any
+``cosim.storage.registered_models()`` chosen by name ("fifo", "mixing", and any
 model other issues register: "rom", "dem"); this asset only does the
 bookkeeping around it: inlet ("enter" events, ``receive``), the discharge
 rate (a piecewise-constant schedule [(t_i, rate_i)] in kg/s, overridden by

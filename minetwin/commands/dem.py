@@ -17,10 +17,6 @@ import sys
 
 from cosim import jsonio
 
-SUMMARY_KEYS = ("particles", "dt_s", "steps", "wall_s", "particle_steps_per_s",
-                "angle_of_repose_deg", "discharged_kg", "mass_balance_rel_error")
-
-
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "dem", help="2D DEM of the stockpile: build a pile, discharge it",
@@ -96,11 +92,19 @@ def _finish(dem, out, label, wall, steps, n_particle_steps, discharged_kg, balan
     return 0
 
 
-class _Counter:
-    """Progress callback that also counts particle-steps between calls."""
+COMPILE_NOTE = ("the first steps compile the DEM kernels (numba, cached for later runs): "
+                "up to about a minute without progress lines")
 
-    def __init__(self, progress, dem):
-        self.progress = progress
+
+class _Counter:
+    """Progress callback (``cosim.progress``: simulated time, particles, steps, held
+    mass) that also counts particle-steps between calls."""
+
+    def __init__(self, label: str, total: float, dem):
+        from cosim.progress import Progress
+
+        self.lines = Progress(label, total, every_s=2.0)
+        self.lines.note(COMPILE_NOTE)
         self.steps = dem.steps_done
         self.particle_steps = 0.0
         self.writer = None
@@ -110,7 +114,16 @@ class _Counter:
         self.steps = dem.steps_done
         if self.writer is not None:
             self.writer.maybe_write(dem)
-        self.progress(dem)
+        self.lines.update(dem.time, self.state(dem))
+
+    def close(self, dem) -> None:
+        """The final line, with the end time and the wall time it took."""
+        self.lines.update(dem.time, self.state(dem))
+        self.lines.close(self.state(dem))
+
+    @staticmethod
+    def state(dem) -> str:
+        return f"{dem.n} particles, step {dem.steps_done}, held {dem.held_mass() / 1e3:.1f} t"
 
 
 def run_pile(args) -> int:
@@ -121,7 +134,6 @@ def run_pile(args) -> int:
     from cosim.errors import ValidationError
     from surrogate.dem import DemConfig
     from surrogate.dem.builders import (
-        Progress,
         config_for_particles,
         packed_pile,
         pour_pile,
@@ -150,14 +162,14 @@ def run_pile(args) -> int:
     # then the whole settling time (settling may stop earlier)
     lots = math.ceil(args.particles * mean_particle_mass(cfg) / args.lot_kg)
     longest = (lots * args.lot_interval if args.method == "pour" else 0.0) + args.settle_time
-    counter = _Counter(Progress(sys.stderr, "dem pile", total=dem.time + longest), dem)
+    counter = _Counter("dem pile", dem.time + longest, dem)
     if args.snapshot_interval:
         counter.writer = SnapshotWriter(out / "snapshots", args.snapshot_interval)
     if args.method == "pour":
         pour_pile(dem, args.particles, lot_kg=args.lot_kg, lot_interval=args.lot_interval,
                   progress=counter)
     settle(dem, max_time=args.settle_time, progress=counter)
-    counter.progress.close(dem)
+    counter.close(dem)
     wall = time.perf_counter() - start
     from cosim.plotstyle import run_label
 
@@ -172,7 +184,6 @@ def run_discharge(args) -> int:
     from pathlib import Path
 
     from cosim.errors import ValidationError
-    from surrogate.dem.builders import Progress
     from surrogate.dem.simulation import Dem
     from surrogate.dem.snapshots import SnapshotWriter
 
@@ -187,8 +198,7 @@ def run_discharge(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     held0 = dem.held_mass()
     steps0 = dem.steps_done
-    counter = _Counter(Progress(sys.stderr, "dem discharge",
-                                total=dem.time + args.duration), dem)
+    counter = _Counter("dem discharge", dem.time + args.duration, dem)
     if args.snapshot_interval:
         counter.writer = SnapshotWriter(out / "snapshots", args.snapshot_interval)
     chunk = 0.25
@@ -199,7 +209,7 @@ def run_discharge(args) -> int:
         dem.advance(min(chunk, end - dem.time))
         records.append(dem.discharged())
         counter(dem)
-    counter.progress.close(dem)
+    counter.close(dem)
     wall = time.perf_counter() - start
     _write_discharged(out / "discharged.csv", records)
     discharged = float(sum(r["mass"].sum() for r in records))

@@ -58,7 +58,7 @@ def run(args) -> int:
 
     from minetwin.commands.stockpile import parse_model_options
     from cosim.errors import ValidationError
-    from cosim.storage import STORAGE_MODELS
+    from cosim.storage import storage_class
     from opcua_server.audit import audit
     from minetwin.harness import (
         ManagedProcess,
@@ -74,8 +74,7 @@ def run(args) -> int:
         raise ValidationError("duration", "in (0, 86400] s", f"got {args.duration}")
     if not 0 < args.speed <= 1000:
         raise ValidationError("speed", "in (0, 1000]", f"got {args.speed}")
-    if args.model not in STORAGE_MODELS:
-        raise ValidationError("model", f"one of {sorted(STORAGE_MODELS)}", f"got {args.model!r}")
+    storage_class(args.model, field="model")
     storage_options = parse_model_options(args.option, field="option")
     _check_storage(args.model, storage_options)
     if args.config is not None:  # the server would refuse it after the other processes start

@@ -54,11 +54,10 @@ def run(args) -> int:
     import signal
 
     from cosim.errors import ValidationError
-    from cosim.storage import STORAGE_MODELS
+    from cosim.storage import storage_class
     from surrogate.client import ClientOptions, StockpileClient
 
-    if args.model not in STORAGE_MODELS:
-        raise ValidationError("model", f"one of {sorted(STORAGE_MODELS)}", f"got {args.model!r}")
+    storage_class(args.model, field="model")
     if not args.server.startswith("opc.tcp://"):
         raise ValidationError("server", "an opc.tcp:// URL", f"got {args.server!r}")
     for name in ("period", "cycle", "dt"):

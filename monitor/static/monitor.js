@@ -316,9 +316,9 @@ const SHOWN = {grade: {scale: 100, label: "grade [%]", digits: 0},
                hardness: {scale: 1, label: "hardness [-]", digits: 3},
                residence_time: {scale: 1, label: "residence time [s]", digits: 0},
                origin: {scale: 1, label: "origin", digits: 0}};
-// Origins too many to name (the mine simulator's: where in the ore body each
-// particle was mined) are coloured on a ramp along x.
-const ORIGIN_RAMP_LABEL = "origin: x where the ore was mined [m]";
+// origin is the index of the source a particle was mined at (named by the
+// stockpile's origin_names); more sources than colours go on a ramp of the index.
+const ORIGIN_RAMP_LABEL = "origin: source index";
 
 function colouring(values, attribute) {
   const finite = values.filter((v) => v !== null && Number.isFinite(v));
@@ -355,9 +355,8 @@ function drawLegend(scheme, attribute) {
       ctx.fillStyle = rampColour(x / (bar.width - 1));
       ctx.fillRect(x, 0, 1, bar.height);
     }
-    const ends = attribute === "origin" ? [" m (left)", " m (right)"] : ["", ""];
-    $("legend-min").textContent = (scheme.lo * shown.scale).toFixed(shown.digits) + ends[0];
-    $("legend-max").textContent = (scheme.hi * shown.scale).toFixed(shown.digits) + ends[1];
+    $("legend-min").textContent = (scheme.lo * shown.scale).toFixed(shown.digits);
+    $("legend-max").textContent = (scheme.hi * shown.scale).toFixed(shown.digits);
   }
   $("legend-label").textContent = attribute === "origin" && !scheme.categorical
     ? ORIGIN_RAMP_LABEL : shown.label;

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time as walltime
 
 import numpy as np
 
@@ -133,31 +132,3 @@ def packed_pile(cfg: DemConfig, n_particles: int, seed: int = 0, angle_deg: floa
     grade = 0.2 + 0.6 * pos[:, 1] / max(pos[:, 1].max(), 1e-9)
     dem.place(pos, cfg.sphere_mass(diameters), grade, 1.0, f16, np.arange(n_particles) // 10)
     return dem
-
-
-class Progress:
-    """DEM progress on ``stream`` (stderr) through ``cosim.progress``: the
-    simulated time against ``total`` [s] (None: unknown), with the particles,
-    steps and held mass, at most every ``every`` seconds of wall time."""
-
-    COMPILE_NOTE = ("the first steps compile the DEM kernels (numba, cached for later runs): "
-                    "up to about a minute without progress lines")
-
-    def __init__(self, stream, label: str, every: float = 2.0, total: float | None = None):
-        from cosim.progress import Progress as Lines
-
-        self.lines = Lines(label, total, stream=stream, every_s=every)
-        self.lines.note(self.COMPILE_NOTE)
-
-    def __call__(self, dem: Dem) -> None:
-        self.lines.update(dem.time, self._state(dem))
-
-    def close(self, dem: Dem) -> None:
-        """The final line, with the end time and the wall time it took."""
-        self.lines.update(dem.time, self._state(dem))
-        self.lines.close(self._state(dem))
-
-    @staticmethod
-    def _state(dem: Dem) -> str:
-        return (f"{dem.n} particles, step {dem.steps_done}, "
-                f"held {dem.held_mass() / 1e3:.1f} t")

@@ -353,9 +353,7 @@ def run_storage(name: str, heldout: Path, model: RomModel | None = None, seed: i
     options = dict(options or {})
     if name == "rom":
         options.setdefault("model", model)
-    if name in ("rom", "mixing"):
-        options.setdefault("rng", np.random.default_rng(seed))
-    storage = make_storage(name, **options)
+    storage = make_storage(name, rng=np.random.default_rng(seed), **options)
     storage.bind(store, OWNER)
     if name == "rom":
         storage.place(ids, np.asarray(initial["position"])[order])

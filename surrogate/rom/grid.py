@@ -149,11 +149,3 @@ def displacement_velocity_field(grid: Grid, before: dict, after: dict) -> np.nda
         field[:, axis] = np.bincount(cells[inside], weights=(mass * velocity[:, axis])[inside],
                                      minlength=grid.n_cells) / safe
     return field.reshape(grid.ny, grid.nx, 2)
-
-
-def snapshot_fields(grid: Grid, snapshot: dict) -> dict[str, np.ndarray]:
-    """Mass, grade and hardness fields of one snapshot (see module docstring)."""
-    position, mass = snapshot["position"], snapshot["mass"]
-    return {"mass": mass_field(grid, position, mass),
-            "grade": mean_field(grid, position, mass, snapshot["grade"]),
-            "hardness": mean_field(grid, position, mass, snapshot["hardness"])}

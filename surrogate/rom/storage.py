@@ -44,13 +44,13 @@ under the inlet, angle-of-repose spreading) and join the bulk at once.
 The particle store holds positions in the DEM plane: ``position[:, 0]`` = x
 (horizontal), ``position[:, 1]`` = y (up) [m], ``position[:, 2]`` = 0;
 ``velocity[:, :2]`` is the interpolated field [m/s]. ``has_geometry`` tells
-the stockpile asset to report these as they are.
+the views to show these as they are.
 
 Parameters
 ----------
 model : RomModel or str or Path, optional
-    The trained model or its file (``minetwin rom train``); may also be
-    given later to ``fit``.
+    The trained model or its file (``minetwin rom train``), loaded by
+    ``load``; may also be given later to ``load``.
 update_interval : float
     Seconds between velocity predictions (default 1.0 s).
 max_step : float
@@ -138,12 +138,13 @@ class RomStorage(StorageModel):
 
     name = "rom"
     has_geometry = True
+    checkpointable = True
 
     def __init__(self, model=None, *, update_interval: float = 1.0, max_step: float = 1.0,
                  inflow_window: float = 30.0, rng: np.random.Generator | None = None,
                  fallback: str | None = None, fallback_config=None, surface: str = "dem",
                  surface_config=None, surface_dt_safety_factor: float | None = None):
-        super().__init__()
+        super().__init__(rng=rng)
         if fallback not in FALLBACKS:
             raise ValidationError("fallback", f"one of {FALLBACKS}", f"got {fallback!r}")
         if surface not in SURFACES:
@@ -162,7 +163,6 @@ class RomStorage(StorageModel):
                                                  unit="s"))
         self.inflow_window = float(check_finite_range("inflow_window", inflow_window, 0.0,
                                                       low_open=True, unit="s"))
-        self.rng = rng if rng is not None else np.random.default_rng(0)
         self.model: RomModel | None = None
         self._ids = np.empty(0, dtype=np.uint64)
         self._mass = np.empty(0)
@@ -174,21 +174,22 @@ class RomStorage(StorageModel):
         self._width = None
         self._drained = None
         self.out_of_range: dict[str, str] = {}
-        self.out_of_range_now: list[str] = []
+        self.out_of_range_now: tuple[str, ...] = ()
         self._next_range_check = -np.inf
         if model is not None:
-            self.fit(model)
+            self.load(model)
 
     # ------------------------------------------------------------ set-up
-    def fit(self, data=None) -> "RomStorage":
-        """Use a trained ``RomModel`` or load one from a model file path."""
-        if isinstance(data, RomModel):
-            model = data
-        elif isinstance(data, (str, Path)):
-            model = RomModel.load(data)
-        else:
+    def load(self, model) -> "RomStorage":
+        """Use a trained ``RomModel``, or load one from its file (``minetwin rom train``).
+
+        Nothing is fitted here: training is ``RomModel.fit``.
+        """
+        if isinstance(model, (str, Path)):
+            model = RomModel.load(model)
+        elif not isinstance(model, RomModel):
             raise ValidationError("model", "a RomModel or the path of a ROM model file",
-                                  f"got {type(data).__name__}")
+                                  f"got {type(model).__name__}")
         if model.container is None or not model.trained:
             raise ValidationError("model", "a trained ROM with its container geometry")
         self.model = model
@@ -201,7 +202,7 @@ class RomStorage(StorageModel):
 
     def _need_model(self) -> RomModel:
         if self.model is None:
-            raise ValidationError("model", "a trained ROM (RomStorage(model=PATH) or fit(PATH); "
+            raise ValidationError("model", "a trained ROM (RomStorage(model=PATH) or load(PATH); "
                                   "train one with `minetwin rom train`)")
         return self.model
 
@@ -288,7 +289,7 @@ class RomStorage(StorageModel):
             self._next_range_check = t + RANGE_CHECK_INTERVAL
             found = model.check_ranges(mass, discharge_rate, inflow, model.mass_residual(mass),
                                        warn=False)
-            self.out_of_range_now = sorted(found)
+            self.out_of_range_now = tuple(sorted(found))
             for name, message in found.items():
                 if name not in self.out_of_range:
                     self.out_of_range[name] = message
@@ -422,7 +423,7 @@ class RomStorage(StorageModel):
                   self.particles.hardness[slots], self.particles.f[slots],
                   np.asarray(tracking).astype(np.uint64), ids=self._ids)
         dem.credits[0] = self._credit_kg
-        self.dem_storage = DemStorage(dem=dem).bind(self.particles, self.owner)
+        self.dem_storage = DemStorage(dem=dem, rng=self.rng).bind(self.particles, self.owner)
         self.dem_storage.sync()
         self.fallen_back_at = float(t)
         self._ids, self._mass, self._pos = (np.empty(0, dtype=np.uint64), np.empty(0),
