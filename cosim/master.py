@@ -256,12 +256,12 @@ class Master:
             if component not in self.components:
                 raise ValidationError("component", "added to the master first",
                                       f"{component.name!r} is not")
-        if outlet not in source.outlets:
-            raise ValidationError("outlet", f"one of {list(source.outlets)} of {source.name}",
-                                  f"got {outlet!r}")
-        if inlet not in target.inlets:
-            raise ValidationError("inlet", f"one of {list(target.inlets)} of {target.name}",
-                                  f"got {inlet!r}")
+        for port, ports, owner, side in ((outlet, source.outlets, source, "outlet"),
+                                         (inlet, target.inlets, target, "inlet")):
+            if port not in ports:
+                raise ValidationError(side, f"one of {list(ports)} of {owner.name}" if ports
+                                      else f"absent: {owner.name} has no {side}",
+                                      f"got {port!r}")
         if not (np.isfinite(fraction) and 0.0 < fraction <= 1.0):
             raise ValidationError("fraction", "in (0, 1]", f"got {fraction!r}")
         flow = Flow(target, inlet, float(fraction))

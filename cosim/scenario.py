@@ -110,10 +110,13 @@ class SignalParameters(Parameters):
 
 
 class ScenarioParameters(Parameters):
-    simulation: SimulationParameters = SimulationParameters()
+    """The file's tables; each is checked by its own model so that one error does not
+    hide the others."""
+
+    simulation: dict = {}
     assets: dict[str, dict]
-    flows: list[FlowParameters] = []
-    signals: list[SignalParameters] = []
+    flows: list[dict] = []
+    signals: list[dict] = []
     reference: dict | None = None
     """Names the signals of a reference result (minetwin.testing.reference); the simulator
     ignores it."""
@@ -154,6 +157,15 @@ def validate(raw: dict) -> dict:
     top, errors = check(ScenarioParameters, raw)
     if top is None:
         raise_all(errors)
+    simulation, errors = check(SimulationParameters, top.simulation, "simulation")
+    checked = [(check(FlowParameters, flow, f"flows[{k}]"), "flow")
+               for k, flow in enumerate(top.flows)]
+    checked += [(check(SignalParameters, signal, f"signals[{k}]"), "signal")
+                for k, signal in enumerate(top.signals)]
+    for (_, found), _ in checked:
+        errors += found
+    flow_tables = [table for (table, _), what in checked if what == "flow"]
+    signal_tables = [table for (table, _), what in checked if what == "signal"]
     spec = PlantSpec()
     assets = {}
     if not top.assets:
@@ -175,11 +187,13 @@ def validate(raw: dict) -> dict:
             spec.assets[name] = (kind, parameters)
             spec.kind_names[name] = table["kind"]
             assets[name] = {"kind": table["kind"], **parameters.model_dump()}
-    flows = [flow.model_dump(by_alias=True) for flow in top.flows]
+    flows = [flow.model_dump(by_alias=True) for flow in flow_tables if flow is not None]
     spec.flows = [_flow_ends(flow) for flow in flows]
-    complete = len(spec.assets) == len(top.assets)
+    complete = len(spec.assets) == len(top.assets) and len(flows) == len(flow_tables)
     errors += _check_flows(spec, flows, top.assets, complete)
-    for k, signal in enumerate(top.signals):
+    for k, signal in enumerate(signal_tables):
+        if signal is None:
+            continue
         for key, end in (("from", signal.source), ("to", signal.target)):
             if end.split(".")[0] not in top.assets and not _owned_component(end, top.assets):
                 errors.append(ValidationError(f"signals[{k}].{key}",
@@ -189,8 +203,8 @@ def validate(raw: dict) -> dict:
         for name, (kind, parameters) in spec.assets.items():
             errors += kind.check(name, parameters, spec)
     raise_all(errors)
-    cfg = {"simulation": top.simulation.model_dump(), "assets": assets, "flows": flows,
-           "signals": [signal.model_dump(by_alias=True) for signal in top.signals]}
+    cfg = {"simulation": simulation.model_dump(), "assets": assets, "flows": flows,
+           "signals": [signal.model_dump(by_alias=True) for signal in signal_tables]}
     if top.reference is not None:
         cfg["reference"] = top.reference
     return cfg

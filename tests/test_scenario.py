@@ -143,3 +143,37 @@ def test_simulate_command_refuses_bad_input_with_exit_code_2(tmp_path):
     assert result.returncode == 2 and "--storage-model: must be one of" in result.stderr
     assert _minetwin("simulate", "--help").returncode == 0
     assert _minetwin("reproduce", "--help").returncode == 0
+
+
+def test_one_validation_pass_reports_every_error_at_once():
+    from cosim.errors import ValidationErrors
+
+    config = copy.deepcopy(load(EXAMPLE))
+    config["assets"]["left"]["grade"] = 1.5
+    config["assets"]["mill"]["speed_rad_s"] = -1.0
+    config["assets"]["crusher"]["jaw"] = 1.0
+    config["simulation"]["step_s"] = 0.0
+    config["flows"][1]["to"] = "conveyor_crusher_stockpile.side"
+    with pytest.raises(ValidationErrors) as error:
+        validate(config)
+    fields = [e.field for e in error.value.errors]
+    assert fields == ["simulation.step_s", "assets.left.grade", "assets.crusher.jaw",
+                      "assets.mill.speed_rad_s", "flows[1].to"]
+    message = str(error.value)
+    assert "assets.mill.speed_rad_s: must be finite and >= 0 and <= 100 rad/s (got -1.0)" \
+        in message
+    assert "assets.crusher.jaw: must be one of ['fmu', 'jaw_throughput_kg_s'" in message
+    assert len(message.splitlines()) == 5
+
+
+def test_every_outlet_is_routed_and_split_fractions_add_up_to_one():
+    config = copy.deepcopy(load(EXAMPLE))
+    del config["flows"][3]                              # stockpile.bottom -> belt
+    with pytest.raises(ValidationError, match="a flow from stockpile.bottom"):
+        validate(config)
+    config = copy.deepcopy(load(EXAMPLE))
+    config["flows"][2]["fraction"] = 0.5
+    config["flows"].append({"from": "conveyor_crusher_stockpile.out", "to": "stockpile.top",
+                            "fraction": 0.25})
+    with pytest.raises(ValidationError, match="fractions adding up to 1.*add up to 0.75"):
+        validate(config)
