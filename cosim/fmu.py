@@ -515,6 +515,7 @@ class FmuComponent(Component):
             (g, [(v.name, g.slices[v.name][0], v.shape) for v in g.variables])
             for g in self._outputs]
         self.output_types = {v.name: v.type for g in self._outputs for v in g.variables}
+        self.output_names = tuple(self.output_types)
         self._latest: dict[str, object] = {}
 
         self._unzipdir = extract(self.path)

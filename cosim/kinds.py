@@ -70,10 +70,6 @@ class PlantSpec:
     kind_names: dict = field(default_factory=dict)
     """Asset name -> the name of its kind in the registry."""
 
-    def kind_of(self, name: str) -> AssetKind | None:
-        entry = self.assets.get(name)
-        return None if entry is None else entry[0]
-
     def feeds(self, name: str, outlet: str) -> list[tuple[str, str]]:
         """``(asset, inlet)`` of every flow out of ``name.outlet``."""
         return [(flow["to_asset"], flow["to_port"]) for flow in self.flows

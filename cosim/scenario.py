@@ -122,20 +122,6 @@ class ScenarioParameters(Parameters):
     ignores it."""
 
 
-def plant_spec(config: dict):
-    """The ``cosim.kinds.PlantSpec`` of a validated scenario."""
-    from cosim.kinds import PlantSpec, asset_kind
-
-    spec = PlantSpec()
-    for name, table in config["assets"].items():
-        kind = asset_kind(table["kind"])
-        spec.assets[name] = (kind, kind.Parameters.model_validate(
-            {k: v for k, v in table.items() if k != "kind"}))
-        spec.kind_names[name] = table["kind"]
-    spec.flows = [_flow_ends(flow) for flow in config["flows"]]
-    return spec
-
-
 def _flow_ends(flow: dict) -> dict:
     source, outlet = flow["from"].split(".")
     target, inlet = flow["to"].split(".")
@@ -150,6 +136,11 @@ def validate(raw: dict) -> dict:
     is idempotent and a validated scenario may be edited (e.g. by
     ``reproduce``) and validated again. Every error found is reported at once.
     """
+    return _validated(raw)[0]
+
+
+def _validated(raw: dict):
+    """``(config, PlantSpec)`` of a scenario dict (``validate``)."""
     from cosim.kinds import PlantSpec, asset_kind
 
     if not isinstance(raw, dict):
@@ -207,7 +198,7 @@ def validate(raw: dict) -> dict:
            "signals": [signal.model_dump(by_alias=True) for signal in signal_tables]}
     if top.reference is not None:
         cfg["reference"] = top.reference
-    return cfg
+    return cfg, spec
 
 
 def _owned_component(end: str, assets: dict) -> bool:
@@ -316,9 +307,8 @@ def build(config: dict, *, seed: int | None = None, storage_model: str | None = 
         for table in cfg.get("assets", {}).values():
             if isinstance(table, dict) and table.get("kind") == "stockpile":
                 table["model"] = storage_model
-    cfg = validate(cfg)
+    cfg, spec = _validated(cfg)
     sim = cfg["simulation"]
-    spec = plant_spec(cfg)
     rng = np.random.default_rng(sim["seed"])
     events = (EventStore(events_path, timeout=sim["event_store_timeout_s"])
               if events_path is not None else None)

@@ -110,8 +110,11 @@ class Stockpile(Asset):
         return self._inlet_locations[inlet]
 
     def scheduled_rate(self, t: float, outlet: str | None = None) -> float:
-        """Feeder rate of ``outlet``'s schedule (default: the first) at time ``t`` [kg/s]."""
-        times, rates = self._schedules[self.outlets[0] if outlet is None else outlet]
+        """Feeder rate of ``outlet``'s schedule at time ``t`` [kg/s]; without ``outlet``,
+        the sum over the outlets (what the storage model is asked to discharge)."""
+        if outlet is None:
+            return sum(self.scheduled_rate(t, name) for name in self.outlets)
+        times, rates = self._schedules[outlet]
         k = int(np.searchsorted(times, t, side="right")) - 1
         return float(rates[k]) if k >= 0 else 0.0
 
