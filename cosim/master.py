@@ -51,6 +51,7 @@ variables' types) or float64.
 
 from __future__ import annotations
 
+import functools
 import sys
 import time as wallclock
 from dataclasses import dataclass
@@ -102,8 +103,9 @@ class Component:
 
     def __init__(self):
         self.inputs: dict[str, object] = {}
-        self.routes: dict[str, "Flow | Split"] = {}
-        """Outlet -> where its particles go; bound by ``Master.connect_flow``."""
+        self.routes: dict[str, object] = {}
+        """Outlet -> ``route(ids, t)`` that takes its particles; bound by
+        ``Master.connect_flow`` (the target's ``receive`` for its inlet, or a ``Split``)."""
 
     def set_input(self, name: str, value) -> None:
         if self.input_names and name not in self.input_names:
@@ -138,7 +140,7 @@ class Component:
 
     def send(self, outlet: str, ids, t: float) -> None:
         """Hand particles ``ids`` leaving through ``outlet`` at ``t`` to its route."""
-        self.routes[outlet].send(ids, t)
+        self.routes[outlet](ids, t)
 
 
 @dataclass(frozen=True)
@@ -149,8 +151,9 @@ class Flow:
     inlet: str
     fraction: float = 1.0
 
-    def send(self, ids, t: float) -> None:
-        self.target.receive(ids, t, self.inlet)
+    def route(self):
+        """The callable an outlet with this one flow hands its particles to."""
+        return functools.partial(self.target.receive, inlet=self.inlet)
 
 
 class Split:
@@ -168,14 +171,14 @@ class Split:
         self.fractions = np.array([f.fraction for f in self.flows])
         self.sent = np.zeros(len(self.flows))
 
-    def send(self, ids, t: float) -> None:
+    def __call__(self, ids, t: float) -> None:
         if len(ids) == 0:
             return
         choice = _split_choice(self.masses(ids), self.fractions, self.sent)
         for k, flow in enumerate(self.flows):
             part = ids[choice == k]
             if part.size:
-                flow.send(part, t)
+                flow.target.receive(part, t, flow.inlet)
 
 
 @dataclass(frozen=True)
@@ -267,7 +270,8 @@ class Master:
         flow = Flow(target, inlet, float(fraction))
         self.flows.append((source, outlet, flow))
         routed = [f for s, o, f in self.flows if s is source and o == outlet]
-        source.routes[outlet] = flow if len(routed) == 1 else Split(routed, source.particle_masses)
+        source.routes[outlet] = (flow.route() if len(routed) == 1
+                                 else Split(routed, source.particle_masses))
 
     def check_flows(self) -> None:
         """Refuse a run with an outlet that is needed but not routed, or a split whose

@@ -149,6 +149,8 @@ class Asset(Component):
         self.plant = plant
         self.owner = plant.register(name)
         self.location = tuple(float(c) for c in location)
+        self.inlet_locations = {inlet: self.location for inlet in self.inlets}
+        """Where particles entering through each inlet are [m] (default: the location)."""
 
     @property
     def particles(self):
@@ -165,17 +167,13 @@ class Asset(Component):
     def held_mass(self) -> float:
         return float(self.particles.mass[self.particles.owner == self.owner].sum())
 
-    def inlet_location(self, inlet: str) -> tuple:
-        """Where particles entering through ``inlet`` are [m] (default: the asset's location)."""
-        return self.location
-
     def receive(self, ids: np.ndarray, t: float, inlet: str | None = None) -> None:
         """Take over particles ``ids`` at time ``t`` through ``inlet`` (default: the first):
         new owner and an "enter" event."""
         if ids.size == 0:
             return
         inlet = self.inlets[0] if inlet is None else inlet
-        location = self.inlet_location(inlet)
+        location = self.inlet_locations[inlet]
         slots = self.particles.slots(ids)
         self.particles.set_owner(slots, self.owner, t)
         self.particles.position[slots] = location

@@ -75,14 +75,15 @@ class Stockpile(Asset):
                  sensor_interval: float = 0.0):
         if not inlets or not outlets:
             raise ValidationError(f"{name}.inlets", "at least one inlet and one outlet")
-        self._inlet_locations = {inlet: tuple(float(c) for c in where)
-                                 for inlet, where in inlets.items()}
+        locations = {inlet: tuple(float(c) for c in where) for inlet, where in inlets.items()}
         self.inlets = tuple(inlets)
         self.outlets = tuple(outlets)
-        super().__init__(name, plant, location=next(iter(self._inlet_locations.values())))
+        super().__init__(name, plant, location=next(iter(locations.values())))
+        self.inlet_locations = locations
         self.outlet_locations = {outlet: tuple(float(c) for c in where)
                                  for outlet, (where, _) in outlets.items()}
         self.input_names = tuple(f"discharge_rate_{outlet}" for outlet in self.outlets)
+        self._rate_inputs = tuple(zip(self.outlets, self.input_names))
         self.model = model.bind(plant.particles, self.owner)
         self.capacity = float(capacity)
         self._schedules = {}
@@ -95,19 +96,18 @@ class Stockpile(Asset):
             self._schedules[outlet] = (np.array([t for t, _ in schedule]),
                                        np.array([r for _, r in schedule]))
         self._held_kg = 0.0
+        self._rate_kg_s = 0.0
+        self._discharged_kg = 0.0
         self._discharged = {outlet: 0.0 for outlet in self.outlets}
         self._rates = {outlet: 0.0 for outlet in self.outlets}
         self._credit = np.zeros(len(self.outlets))
         self._sensors = AssetSensors(self.owner, sensor_window, sensor_interval)
         self._readings = self._sensors.readings
-        several = len(self.outlets) > 1
+        self._several = several = len(self.outlets) > 1
         self.output_names = ("mass_kg", "discharge_rate_kg_s", "discharged_kg", "inlet_open",
                              *AssetSensors.names,
                              *(f"{key}_{outlet}" for outlet in self.outlets if several
                                for key in ("discharge_rate_kg_s", "discharged_kg")))
-
-    def inlet_location(self, inlet: str) -> tuple:
-        return self._inlet_locations[inlet]
 
     def scheduled_rate(self, t: float, outlet: str | None = None) -> float:
         """Feeder rate of ``outlet``'s schedule at time ``t`` [kg/s]; without ``outlet``,
@@ -123,13 +123,16 @@ class Stockpile(Asset):
         self.model.receive(ids, t)
 
     def step(self, t: float, dt: float) -> None:
-        for outlet in self.outlets:
-            rate = self.inputs.get(f"discharge_rate_{outlet}")
-            self._rates[outlet] = (self.scheduled_rate(t, outlet) if rate is None
-                                   else check_discharge_rate(rate))
-        leaving = self.model.step(t, dt, sum(self._rates.values()))
+        total = 0.0
+        for outlet, name in self._rate_inputs:
+            rate = self.inputs.get(name)
+            rate = self.scheduled_rate(t, outlet) if rate is None else check_discharge_rate(rate)
+            self._rates[outlet] = rate
+            total += rate
+        self._rate_kg_s = total
+        leaving = self.model.step(t, dt, total)
         store = self.particles
-        if len(self.outlets) == 1:
+        if not self._several:
             if leaving.size:
                 self._discharge(self.outlets[0], leaving, store.slots(leaving), t + dt)
         else:
@@ -151,16 +154,17 @@ class Stockpile(Asset):
         store.position[slots] = where
         leaving_kg = float(store.mass[slots].sum())
         self._discharged[outlet] += leaving_kg
+        self._discharged_kg += leaving_kg
         self._held_kg -= leaving_kg
         self.plant.record("exit", self.name, t, slots, where)
         self.send(outlet, ids, t)
 
     def outputs(self) -> dict[str, float]:
-        out = {"mass_kg": self._held_kg, "discharge_rate_kg_s": sum(self._rates.values()),
-               "discharged_kg": sum(self._discharged.values()),
+        out = {"mass_kg": self._held_kg, "discharge_rate_kg_s": self._rate_kg_s,
+               "discharged_kg": self._discharged_kg,
                "inlet_open": 1.0 if self._held_kg < self.capacity else 0.0,
                **self._readings}
-        if len(self.outlets) > 1:
+        if self._several:
             for outlet in self.outlets:
                 out[f"discharge_rate_kg_s_{outlet}"] = self._rates[outlet]
                 out[f"discharged_kg_{outlet}"] = self._discharged[outlet]
