@@ -11,8 +11,9 @@ Model. A parcel is not split (its id, and so its tracking history, stays
 whole): a parcel whose mass fraction coarser than the aperture,
 sum of f_n^k over the classes whose lower edge d_{k-1} >= ``aperture`` [m],
 exceeds ``oversize_limit`` [-] leaves through ``oversize``, every other one
-through ``undersize``. Parcels received in a step are screened in the same
-step (the screen deck holds nothing between steps). In a closed circuit the
+through ``undersize``. Parcels are screened at the screen's next step: the
+same communication step for feeders listed before the screen, the next one
+for a return leg listed after it (the deck holds nothing longer). In a closed circuit the
 oversize goes to a crusher and comes back onto the screen; a crusher that
 breaks everything coarser than the aperture closes the loop in one pass.
 
