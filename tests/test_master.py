@@ -159,3 +159,18 @@ def test_a_run_refuses_an_unrouted_outlet_and_fractions_not_adding_up_to_one():
     master.connect_flow(feeder, "out", bin_, "side", fraction=0.25)
     with pytest.raises(ValidationError, match="fractions from feeder.out adding up to 1"):
         master.run(1.0)
+
+
+def test_connect_refuses_an_output_the_fmu_does_not_declare():
+    from cosim.fmu import CRUSHER_INTERFACE, FmuComponent, fmu_path
+
+    master = Master(step=0.5, progress=False)
+    crusher = master.add(FmuComponent(fmu_path("crusher"), interface=CRUSHER_INTERFACE))
+    level = master.add(Integrator("level"))
+    try:
+        with pytest.raises(ValidationError, match=r"output: must be one of \[.*'power'.*\] of "
+                                                  r"crusher \(got 'powr'\)"):
+            master.connect(crusher, "powr", level, "rate")
+        master.connect(crusher, "power", level, "rate")
+    finally:
+        master.finish()
