@@ -134,7 +134,7 @@ class Stockpile(Asset):
         store = self.particles
         if not self._several:
             if leaving.size:
-                self._discharge(self.outlets[0], leaving, store.slots(leaving), t + dt)
+                self._discharge(store, self.outlets[0], leaving, store.slots(leaving), t + dt)
         else:
             self._credit += np.array([self._rates[o] for o in self.outlets]) * dt
             if leaving.size:
@@ -143,13 +143,12 @@ class Stockpile(Asset):
                 for k, outlet in enumerate(self.outlets):
                     mine = choice == k
                     if mine.any():
-                        self._discharge(outlet, leaving[mine], slots[mine], t + dt)
+                        self._discharge(store, outlet, leaving[mine], slots[mine], t + dt)
             if self.model.held_ids().size == 0:
                 self._credit[:] = 0.0     # an empty pile owes nothing (as the feeder's credit)
         self._readings = self._sensors.sample(store, t + dt)
 
-    def _discharge(self, outlet: str, ids, slots, t: float) -> None:
-        store = self.particles
+    def _discharge(self, store, outlet: str, ids, slots, t: float) -> None:
         where = self.outlet_locations[outlet]
         store.position[slots] = where
         leaving_kg = float(store.mass[slots].sum())
