@@ -29,6 +29,28 @@ class ValidationError(ValueError):
         super().__init__(message)
 
 
+class ValidationErrors(ValidationError):
+    """Several refusals found in one validation pass, reported together.
+
+    ``errors`` lists them (each a ``ValidationError``); ``field``, ``allowed``
+    and ``detail`` are the first one's, and the message has one line each.
+    """
+
+    def __init__(self, errors):
+        self.errors = list(errors)
+        first = self.errors[0]
+        self.field, self.allowed, self.detail = first.field, first.allowed, first.detail
+        ValueError.__init__(self, "\n".join(str(error) for error in self.errors))
+
+
+def raise_all(errors) -> None:
+    """Raise nothing for no errors, the error itself for one, ``ValidationErrors`` else."""
+    if len(errors) == 1:
+        raise errors[0]
+    if errors:
+        raise ValidationErrors(errors)
+
+
 def check_finite_range(field, values, low=None, high=None, *, low_open=False,
                        unit="", allow_nan=False):
     """Refuse ``values`` unless every element lies in [low, high] (or (low, high]).

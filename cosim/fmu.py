@@ -158,6 +158,46 @@ def fmu_path(name: str, fmi: int = 3) -> Path:
     return path
 
 
+def resolve_fmu(name: str) -> str:
+    """The .fmu file a scenario means by ``name``: a path ending in .fmu, or a built FMU."""
+    if name.endswith(".fmu"):
+        if not Path(name).is_file():
+            raise ValidationError("fmu", "a built FMU name or an existing .fmu file",
+                                  f"{name!r} not found")
+        return name
+    return str(fmu_path(name))
+
+
+def check_fmu_parameters(fmu: str, parameters: dict) -> None:
+    """Refuse parameters the FMU does not have, or values outside its declared min/max
+    (field ``parameters.NAME``)."""
+    if not parameters:
+        return
+    from fmpy import read_model_description
+
+    file = resolve_fmu(fmu)
+    try:
+        description = read_model_description(file)
+    except Exception:  # noqa: BLE001 - a broken FMU is reported, in full, when it is loaded
+        return
+    declared = {v.name: v for v in description.modelVariables
+                if v.causality in ("parameter", "input") or v.variability == "tunable"}
+    for key, value in parameters.items():
+        name = f"parameters.{key}"
+        variable = declared.get(key)
+        if variable is None:
+            raise ValidationError(name, f"a parameter of {Path(file).name}: "
+                                  f"one of {sorted(declared)}", "unknown parameter")
+        unit = f" {variable.unit}" if variable.unit else ""
+        low, high = (None if v is None else float(v) for v in (variable.min, variable.max))
+        if (low is not None and value < low) or (high is not None and value > high):
+            bounds = " and ".join(part for part in (
+                f">= {low:g}{unit}" if low is not None else "",
+                f"<= {high:g}{unit}" if high is not None else "") if part)
+            raise ValidationError(name, f"{bounds} (the FMU's declared range)",
+                                  f"got {value!r}")
+
+
 def fmi2_scalar_names(name: str, shape) -> list[str]:
     """FMI 2.0 scalar names of a variable, row-major: ``x``, ``x[1]``.., ``x[1,1]``.."""
     if len(shape) == 0:
@@ -475,6 +515,7 @@ class FmuComponent(Component):
             (g, [(v.name, g.slices[v.name][0], v.shape) for v in g.variables])
             for g in self._outputs]
         self.output_types = {v.name: v.type for g in self._outputs for v in g.variables}
+        self.output_names = tuple(self.output_types)
         self._latest: dict[str, object] = {}
 
         self._unzipdir = extract(self.path)

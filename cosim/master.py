@@ -15,12 +15,27 @@ The API is deliberately small (after mosaik)::
     master.run(until=600.0)
     master.timeseries                               # pandas DataFrame
 
+Particles are routed the same way, along flows::
+
+    master.connect_flow(crusher, "product", belt, "feed")   # outlet -> inlet
+    master.connect_flow(belt, "out", pile, "east", fraction=0.5)   # a split ...
+    master.connect_flow(belt, "out", pile, "west", fraction=0.5)   # ... by mass
+
 Components are stepped in the order they were added, each from t to t + dt.
 Before a component steps, each of its connected inputs receives the
 source's latest output: the value of the current step if the source was
 added earlier (Gauss-Seidel order), else of the previous step. Particles
-move between assets by changing their owner in the shared ``ParticleStore``
-inside the assets' own ``step``; the master only moves signals.
+move between assets by changing their owner in the shared ``ParticleStore``;
+an asset hands the particles leaving an outlet to the route the master
+bound to it (``Component.routes``), inside its own ``step``, so material
+handed downstream is processed there in the same step. Several flows into
+one inlet merge; several flows out of one outlet split by mass.
+
+Both ends are checked when they are wired (mosaik style: components
+declare what they offer): ``connect`` refuses an output a component does
+not declare in ``output_names`` and an input not in ``input_names``;
+``connect_flow`` refuses an outlet not in ``outlets`` and an inlet not in
+``inlets``. Nothing is checked per step.
 
 A component may ask to end the simulation by setting ``stop_request`` to a
 ``StopRequest(time, reason)`` in its ``step`` (an FMU does when it requests
@@ -36,10 +51,12 @@ variables' types) or float64.
 
 from __future__ import annotations
 
+import functools
 import sys
 import time as wallclock
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from cosim.errors import ValidationError
@@ -77,9 +94,18 @@ class Component:
     """Set in ``step`` to end the simulation (the master reads it after each step)."""
     output_types: dict[str, str] = {}
     """FMI type name per output of a typed component (an FMU); empty: untyped floats."""
+    output_names: tuple[str, ...] = ()
+    """Outputs this component offers; ``connect`` refuses others (empty: any)."""
+    inlets: tuple[str, ...] = ()
+    """Where particles may enter (``connect_flow`` targets); empty: none."""
+    outlets: tuple[str, ...] = ()
+    """Where particles may leave (``connect_flow`` sources); empty: none."""
 
     def __init__(self):
         self.inputs: dict[str, object] = {}
+        self.routes: dict[str, object] = {}
+        """Outlet -> ``route(ids, t)`` that takes its particles; bound by
+        ``Master.connect_flow`` (the target's ``receive`` for its inlet, or a ``Split``)."""
 
     def set_input(self, name: str, value) -> None:
         if self.input_names and name not in self.input_names:
@@ -103,6 +129,56 @@ class Component:
     def record_dtypes(self) -> dict:
         """numpy dtype per output signal for recording (missing: float64)."""
         return {}
+
+    def receive(self, ids, t: float, inlet: str) -> None:
+        """Take over particles ``ids`` at ``t`` through ``inlet`` (components with inlets)."""
+        raise NotImplementedError
+
+    def required_outlets(self) -> tuple[str, ...]:
+        """Outlets particles will leave through: each must be routed before a run."""
+        return self.outlets
+
+    def send(self, outlet: str, ids, t: float) -> None:
+        """Hand particles ``ids`` leaving through ``outlet`` at ``t`` to its route."""
+        self.routes[outlet](ids, t)
+
+
+@dataclass(frozen=True)
+class Flow:
+    """Particles leaving an outlet enter ``target`` through ``inlet``."""
+
+    target: Component
+    inlet: str
+    fraction: float = 1.0
+
+    def route(self):
+        """The callable an outlet with this one flow hands its particles to."""
+        return functools.partial(self.target.receive, inlet=self.inlet)
+
+
+class Split:
+    """An outlet feeding several flows: each gets its ``fraction`` of the mass.
+
+    Particles leave whole, so the split is by a mass credit: each particle,
+    in the order it leaves, goes to the flow furthest behind its share
+    (sent_i - fraction_i * sent_total smallest; ties to the first flow).
+    Over time every flow's mass is within one particle of its share.
+    """
+
+    def __init__(self, flows: list[Flow], masses):
+        self.flows = list(flows)
+        self.masses = masses          # ids -> masses [kg] (the shared particle store's)
+        self.fractions = np.array([f.fraction for f in self.flows])
+        self.sent = np.zeros(len(self.flows))
+
+    def __call__(self, ids, t: float) -> None:
+        if len(ids) == 0:
+            return
+        choice = _split_choice(self.masses(ids), self.fractions, self.sent)
+        for k, flow in enumerate(self.flows):
+            part = ids[choice == k]
+            if part.size:
+                flow.target.receive(part, t, flow.inlet)
 
 
 @dataclass(frozen=True)
@@ -139,6 +215,7 @@ class Master:
         self.time = 0.0
         self.components: list[Component] = []
         self.connections: list[Connection] = []
+        self.flows: list[tuple[Component, str, Flow]] = []
         self._by_target: dict[int, list[Connection]] = {}
         self._steps_done = 0
         self._recorder = _Recorder()
@@ -160,6 +237,9 @@ class Master:
             if component not in self.components:
                 raise ValidationError("component", "added to the master first",
                                       f"{component.name!r} is not")
+        if source.output_names and output not in source.output_names:
+            raise ValidationError("output", f"one of {list(source.output_names)} of "
+                                  f"{source.name}", f"got {output!r}")
         if target.input_names and input not in target.input_names:
             raise ValidationError("input", f"one of {list(target.input_names)} of {target.name}",
                                   f"got {input!r}")
@@ -169,6 +249,43 @@ class Master:
         connection = Connection(source, output, target, input)
         self.connections.append(connection)
         self._by_target.setdefault(id(target), []).append(connection)
+
+    def connect_flow(self, source: Component, outlet: str, target: Component, inlet: str,
+                     fraction: float = 1.0) -> None:
+        """Route the particles leaving ``source`` through ``outlet`` into ``target``'s
+        ``inlet``; a second flow from the same outlet makes a split by mass fractions
+        (they must add up to 1 when the run starts)."""
+        for component in (source, target):
+            if component not in self.components:
+                raise ValidationError("component", "added to the master first",
+                                      f"{component.name!r} is not")
+        for port, ports, owner, side in ((outlet, source.outlets, source, "outlet"),
+                                         (inlet, target.inlets, target, "inlet")):
+            if port not in ports:
+                raise ValidationError(side, f"one of {list(ports)} of {owner.name}" if ports
+                                      else f"absent: {owner.name} has no {side}",
+                                      f"got {port!r}")
+        if not (np.isfinite(fraction) and 0.0 < fraction <= 1.0):
+            raise ValidationError("fraction", "in (0, 1]", f"got {fraction!r}")
+        flow = Flow(target, inlet, float(fraction))
+        self.flows.append((source, outlet, flow))
+        routed = [f for s, o, f in self.flows if s is source and o == outlet]
+        source.routes[outlet] = (flow.route() if len(routed) == 1
+                                 else Split(routed, source.particle_masses))
+
+    def check_flows(self) -> None:
+        """Refuse a run with an outlet that is needed but not routed, or a split whose
+        fractions do not add up to 1 (both named)."""
+        for component in self.components:
+            for outlet in component.required_outlets():
+                if outlet not in component.routes:
+                    raise ValidationError("flows", f"a flow from {component.name}.{outlet}",
+                                          "the outlet is not connected")
+            for outlet, route in component.routes.items():
+                if isinstance(route, Split) and abs(route.fractions.sum() - 1.0) > 1e-9:
+                    raise ValidationError(
+                        "flows", f"fractions from {component.name}.{outlet} adding up to 1",
+                        f"they add up to {route.fractions.sum():g}")
 
     def run(self, until: float) -> "Master":
         """Advance all components to time ``until`` [s] (continuing from ``self.time``);
@@ -180,6 +297,8 @@ class Master:
             raise ValidationError("until", f"not past the stop requested by "
                                   f"{self.stopped['component']} at {self.stopped['time']:g} s",
                                   f"got {until!r}")
+        if self._steps_done == 0:
+            self.check_flows()
         first = self._steps_done
         start = wallclock.perf_counter()
         report = None
@@ -255,6 +374,22 @@ class Master:
         """Recorded outputs as a DataFrame indexed by time [s]; columns ``component.signal``
         (1-D array outputs as ``component.signal[k]``)."""
         return self._recorder.frame()
+
+
+@numba.njit(cache=True)
+def _split_choice(masses, fractions, sent):
+    """Flow index per particle for ``Split`` (updates ``sent`` [kg] in place)."""
+    choice = np.empty(masses.size, dtype=np.int64)
+    for i in range(masses.size):
+        total = sent.sum()
+        best, lag = 0, np.inf
+        for k in range(fractions.size):
+            behind = sent[k] - fractions[k] * total
+            if behind < lag:
+                best, lag = k, behind
+        choice[i] = best
+        sent[best] += masses[i]
+    return choice
 
 
 def _missing(dtype):

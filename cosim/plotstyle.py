@@ -48,7 +48,10 @@ def run_label(config: dict | None = None, *, scenario: str | None = None, seed=N
     (``cosim.scenario.validate``'s keys) and/or explicit values."""
     if config is not None:
         seed = config.get("simulation", {}).get("seed") if seed is None else seed
-        model = config.get("stockpile", {}).get("model") if model is None else model
+        if model is None:
+            models = [table.get("model") for table in config.get("assets", {}).values()
+                      if isinstance(table, dict) and table.get("kind") == "stockpile"]
+            model = " + ".join(dict.fromkeys(models)) or None
     parts = [f"scenario {scenario or 'unnamed'}"]
     if seed is not None:
         parts.append(f"seed {seed}")

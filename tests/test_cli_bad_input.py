@@ -27,6 +27,9 @@ def bad(tmp_path_factory):
     (folder / "latin1.toml").write_bytes(b"\xff\xfe[simulation]\nuntil_s = 3\n")
     (folder / "broken.toml").write_text("[simulation\nuntil_s = 3\n")
     (folder / "not_a_zip.fmu").write_text("not a zip")
+    example = Path(SCENARIO).read_text()      # two errors, both reported by one validation
+    (folder / "two_errors.toml").write_text(example.replace("grade = 0.2 ", "grade = 1.5 ")
+                                            .replace('to = "mill.feed"', 'to = "mill.side"'))
     with zipfile.ZipFile(folder / "no_description.fmu", "w") as archive:
         archive.writestr("readme.txt", "an archive without modelDescription.xml")
     truncated = folder / "truncated.sqlite"
@@ -59,13 +62,18 @@ CASES = [
     ("simulate {scenario} --out {out} --until 0", "--until: must be > 0 s"),
     ("simulate {scenario} --out {out} --until nan", "--until: must be > 0 s"),
     ("simulate {scenario} --out {out} --storage-model foo", "--storage-model: must be one of"),
-    ("simulate {scenario} --out {out} --model-option bogus=1", "stockpile.options.bogus"),
+    ("simulate {scenario} --out {out} --model-option bogus=1",
+     "assets.stockpile.options.bogus"),
     ("simulate {scenario} --out {out} --model-option novalue", "--model-option: must be KEY=VALUE"),
     ("simulate {scenario} --out {out} --rest-port 70000", "--rest-port: must be in [0, 65535]"),
     ("simulate {scenario} --out {out} --unitl 10", "minetwin simulate: error: unrecognized "
                                                    "arguments: --unitl"),
     ("simulate {scenario} --out {out} --seed 1.5", "--seed: invalid int value"),
     ("simulate {scenario} --out {out} --seed -1", "simulation.seed: must be"),
+    ("simulate {bad}/two_errors.toml --out {out}",
+     "assets.left.grade: must be finite and >= 0 and <= 1 (got 1.5)"),
+    ("simulate {bad}/two_errors.toml --out {out}",
+     "flows[4].to: must be an inlet of mill (mill): one of ['feed'] (got 'mill.side')"),
     ("events summary {bad}/text.md", "database: must be an events.sqlite"),
     ("events summary {bad}/empty.sqlite", "empty file, not an event store"),
     ("events summary {bad}/truncated.sqlite", "database: must be an events.sqlite"),

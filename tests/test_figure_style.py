@@ -20,7 +20,8 @@ import pytest
 from cosim import plotstyle
 
 ROOT = Path(__file__).resolve().parents[1]
-RUN = plotstyle.run_label({"simulation": {"seed": 7}, "stockpile": {"model": "fifo"}},
+RUN = plotstyle.run_label({"simulation": {"seed": 7},
+                           "assets": {"pile": {"kind": "stockpile", "model": "fifo"}}},
                           scenario="unit_test")
 
 
@@ -177,7 +178,8 @@ def test_mwd_figures(figures, tmp_path):
 
     x = np.linspace(0, 100, 50)
     run = SimpleNamespace(
-        config={"simulation": {"seed": 7}, "stockpile": {"model": "fifo"}},
+        config={"simulation": {"seed": 7},
+                "assets": {"stockpile": {"kind": "stockpile", "model": "fifo"}}},
         survey=pd.DataFrame({"source": "left", "x": x, "mwd": (1 + x / 100) ** 0.4}),
         profiles={"left": lambda at: 1 + np.asarray(at) / 100})
     times = np.arange(0.0, 300.0, 1.0)

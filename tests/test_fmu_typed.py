@@ -316,10 +316,20 @@ def test_cli_info_lists_every_variable(fmi, capsys):
 
 @pytest.mark.parametrize("fmi", [3, 2])
 def test_parameters_of_every_type_from_a_scenario_table(fmi):
-    """A scenario's [crusher.parameters] table (TOML) keeps each value's type for the FMU."""
+    """A scenario's [assets.crusher.parameters] table (TOML) keeps each value's type for
+    the FMU."""
     import tomllib
 
-    from cosim.scenario import _parameters
+    from cosim.params import FmuParameters, Parameters, check
+
+    class Table(Parameters):
+        parameters: FmuParameters = {}
+
+    def _parameters(table, path):
+        checked, errors = check(Table, table, path)
+        if errors:
+            raise errors[0]
+        return checked.parameters
 
     text = "\n".join(["[parameters]", 'p_string = "gap="', "p_boolean = true",
                       "p_int32 = -2000000000", "p_float64 = 2.5", 'p_enumeration = "high"']

@@ -16,16 +16,16 @@ EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "step_response.toml
 def small_scene(**simulation) -> dict:
     """The paper's plant scaled down: 3 t loads (30 particles), short belts, early discharge."""
     config = copy.deepcopy(load(EXAMPLE))
-    config["trucks"][0].update(payload_kg=3000.0, start_s=0.0)
-    config["conveyors"]["crusher_to_stockpile"]["length_m"] = 20.0
-    config["conveyors"]["stockpile_to_mill"]["length_m"] = 10.0
-    config["stockpile"]["discharge"] = [[0.0, 0.0], [60.0, 2000.0]]
-    config["sources"]["left"]["hardness"] = {"kind": "step", "at": 0.4, "before": 1.0,
-                                             "after": 2.0}
-    config["mill"]["product_threshold_kg"] = 5.0
+    assets = config["assets"]
+    assets["trucks"]["trucks"][0].update(payload_kg=3000.0, start_s=0.0)
+    assets["conveyor_crusher_stockpile"]["length_m"] = 20.0
+    assets["conveyor_stockpile_mill"]["length_m"] = 10.0
+    assets["stockpile"]["outlets"]["bottom"]["discharge"] = [[0.0, 0.0], [60.0, 2000.0]]
+    assets["left"]["hardness"] = {"kind": "step", "at": 0.4, "before": 1.0, "after": 2.0}
+    assets["mill"]["product_threshold_kg"] = 5.0
     # a few tonnes of charge grind slowly; a stronger impact energy lets particles
     # leave the small scene's mill within its 240 s
-    config["mill"]["parameters"]["impact_energy"] = 1e-4
+    assets["mill"]["parameters"]["impact_energy"] = 1e-4
     config["simulation"].update({"until_s": 240.0, "record_every_s": 0.5, **simulation})
     return config
 
@@ -157,7 +157,8 @@ def test_same_seed_same_summary_and_another_seed_differs(tmp_path):
 
 def test_a_full_stockpile_stops_the_feed_and_loses_nothing():
     config = small_scene(until_s=150.0)
-    config["stockpile"].update(capacity_kg=5000.0, discharge=[[0.0, 0.0]])
+    config["assets"]["stockpile"]["capacity_kg"] = 5000.0
+    config["assets"]["stockpile"]["outlets"]["bottom"]["discharge"] = [[0.0, 0.0]]
     simulation = build(config)
     simulation.run()
     series = simulation.timeseries
@@ -175,7 +176,7 @@ def test_a_full_stockpile_stops_the_feed_and_loses_nothing():
 def test_storage_models_plug_into_the_stockpile(model):
     simulation = build(small_scene(until_s=150.0), storage_model=model)
     simulation.run()
-    assert simulation.config["stockpile"]["model"] == model
+    assert simulation.config["assets"]["stockpile"]["model"] == model
     assert simulation.assets["stockpile"].model.name == model
     assert simulation.timeseries["stockpile.discharged_kg"].iloc[-1] > 0
     assert simulation.timeseries["plant.mass_balance_rel_error"].max() < 1e-9

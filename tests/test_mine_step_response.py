@@ -31,3 +31,15 @@ def test_step_response_shows_the_papers_mechanism(tmp_path):
         summary["crusher_power_ratio"]
     for name in ("crusher_step.png", "mill_step.png"):
         assert (tmp_path / name).stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_the_declared_paper_plant_gives_the_step_response_figures_of_the_fixed_one(tmp_path):
+    """examples/step_response.toml as a declared plant gives the figures the fixed
+    topology gave (examples/README.md, "Paper vs ours": `minetwin reproduce step-response`,
+    seed 1, FIFO, 1,200 s): crusher power ratio 1.49, mill hardness rise 101 s."""
+    summary, failed = reproduce(tmp_path, quick=False, progress=False)
+    assert failed == []
+    assert round(summary["crusher_power_ratio"], 2) == 1.49
+    assert summary["mill_hardness_rise_time_s"] == pytest.approx(101.0, abs=0.5)
+    assert summary["mass_balance_rel_error"] < 1e-9

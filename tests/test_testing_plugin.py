@@ -85,7 +85,7 @@ def test_load_broken_crusher(load_fmu, tmp_path):
 
 
 def test_run_plant_with_broken_crusher(run_scenario, tmp_path):
-    run_scenario(SCENARIO, until=10.0, overrides={{"crusher.fmu": str(_without_power(tmp_path))}})
+    run_scenario(SCENARIO, until=10.0, overrides={{"assets.crusher.fmu": str(_without_power(tmp_path))}})
 '''
 
 

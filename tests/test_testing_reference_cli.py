@@ -59,8 +59,8 @@ def test_bad_input_exits_2_naming_the_field(recorded, tmp_path, capsys):
     assert main(["reference", "compare", str(scenario), str(tmp_path / "none.csv")]) == 2
     assert "reference: must be an existing reference CSV" in capsys.readouterr().err
     assert main(["reference", "compare", str(scenario), str(reference), "--set",
-                 "crusher.nonsense=1"]) == 2
-    assert "crusher.nonsense: must be one of" in capsys.readouterr().err
+                 "assets.crusher.nonsense=1"]) == 2
+    assert "assets.crusher.nonsense: must be one of" in capsys.readouterr().err
     bare = tmp_path / "bare.toml"
     bare.write_text(PLANT.read_text().split("[reference]")[0])
     assert main(["reference", "record", str(bare), "--out", str(tmp_path / "x.csv")]) == 2
@@ -70,7 +70,7 @@ def test_bad_input_exits_2_naming_the_field(recorded, tmp_path, capsys):
 def test_a_run_that_fails_exits_1_with_the_simulator_message(recorded, capsys):
     scenario, reference = recorded
     assert main(["reference", "compare", str(scenario), str(reference), "--set",
-                 "sources.left.length_m=3"]) == 1       # the left ore body runs out
+                 "assets.left.length_m=3"]) == 1      # the left ore body runs out
     err = capsys.readouterr().err
     assert "minetwin reference compare: the run of" in err and "ore body exhausted" in err
 

@@ -7,24 +7,27 @@ import pytest
 from cosim.errors import ValidationError
 from minetwin.testing.scenario import ScenarioRun, apply_overrides
 
-DOCUMENT = {"simulation": {"until_s": 300.0}, "crusher": {"fmu": "crusher",
-                                                         "parameters": {"gap_width": 0.25}}}
+DOCUMENT = {"simulation": {"until_s": 300.0},
+            "assets": {"crusher": {"kind": "crusher", "fmu": "crusher",
+                                   "parameters": {"gap_width": 0.25}},
+                       "mill": {"kind": "mill"}}}
 
 
 def test_overrides_set_dotted_keys_on_a_copy():
-    changed = apply_overrides(DOCUMENT, {"crusher.fmu": "cone_crusher",
-                                         "crusher.parameters.gap_width": 0.2})
-    assert changed["crusher"]["fmu"] == "cone_crusher"
-    assert changed["crusher"]["parameters"]["gap_width"] == 0.2
-    assert DOCUMENT["crusher"]["fmu"] == "crusher"             # the original is untouched
+    changed = apply_overrides(DOCUMENT, {"assets.crusher.fmu": "cone_crusher",
+                                         "assets.crusher.parameters.gap_width": 0.2})
+    crusher = changed["assets"]["crusher"]
+    assert crusher["fmu"] == "cone_crusher"
+    assert crusher["parameters"]["gap_width"] == 0.2
+    assert DOCUMENT["assets"]["crusher"]["fmu"] == "crusher"   # the original is untouched
 
 
 def test_an_override_through_a_missing_table_names_the_tables_there():
     with pytest.raises(ValidationError) as info:
-        apply_overrides(DOCUMENT, {"crushr.fmu": "cone_crusher"})
+        apply_overrides(DOCUMENT, {"assets.crushr.fmu": "cone_crusher"})
     message = str(info.value)
-    assert "overrides['crushr.fmu']" in message and "no table 'crushr'" in message
-    assert "['crusher', 'simulation']" in message
+    assert "overrides['assets.crushr.fmu']" in message and "no table 'assets.crushr'" in message
+    assert "['crusher', 'mill']" in message
 
 
 def _run(errors, summary):

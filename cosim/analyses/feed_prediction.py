@@ -321,8 +321,8 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
     curves, snapshots = {}, {}
     for name, options in models:
         model_config = json.loads(json.dumps(config))
-        model_config["stockpile"]["model"] = name
-        model_config["stockpile"]["options"] = options
+        model_config["assets"]["stockpile"]["model"] = name
+        model_config["assets"]["stockpile"]["options"] = options
         probes = []
 
         def feed_probe(simulation):
@@ -340,7 +340,8 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
         predicted = pd.DataFrame({"time": run.times,
                                   **{key: ts[f"feed_prediction.{key}"].to_numpy()
                                      for key in ("mass", *PROPERTIES)}})
-        rates = [rate for _, rate in model_config["stockpile"]["discharge"] if rate > 0]
+        rates = [rate for outlet in model_config["assets"]["stockpile"]["outlets"].values()
+                 for _, rate in outlet["discharge"] if rate > 0]
         # compare where a full horizon of feed is realised (feeder running, pile not empty)
         min_mass = 0.9 * HORIZON_S * (min(rates) if rates else 0.0)
         errors, curves[name] = analyse_model(run, predicted, min_mass)

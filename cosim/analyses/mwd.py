@@ -273,7 +273,7 @@ BETA_TOLERANCE = 0.01
 
 def run_coefficients(config: dict) -> np.ndarray:
     """k_cr of a scenario's crusher FMU parameters (gap_width [m], k_oversize, k_undersize)."""
-    params = config.get("crusher", {}).get("parameters", {})
+    params = config.get("assets", {}).get("crusher", {}).get("parameters", {})
     return crushing_coefficients(params.get("gap_width", CRUSHER_GAP),
                                  params.get("k_oversize", 1.0), params.get("k_undersize", 0.1))
 

@@ -56,7 +56,7 @@ class ProfileRun:
     @property
     def profile_start(self) -> float:
         """Where the left source's hardness profile starts [m] (local x)."""
-        return float(self.config["sources"]["left"]["hardness"].get("start", 0.0))
+        return float(self.config["assets"]["left"]["hardness"].get("start", 0.0))
 
 
 def output_folder(out_dir) -> Path:
@@ -78,7 +78,7 @@ def scenario_config(*, quick: bool, scenario=SCENARIO) -> dict:
     config = load(scenario)
     if quick:
         config = copy.deepcopy(config)
-        left = config["sources"]["left"]
+        left = config["assets"]["left"]
         left["face_width_m"] = QUICK_FACE_WIDTH_M
         left["hardness"]["start"] += QUICK_LEAD_IN_M
         left["hardness"]["end"] += QUICK_LEAD_IN_M
@@ -102,7 +102,10 @@ def run_profile(out_dir, *, until: float, config: dict, location_error: float =
         Path(str(events_path) + suffix).unlink(missing_ok=True)
     simulation = build(config, seed=seed, storage_model=storage_model, events_path=events_path,
                        progress=progress)
-    sources = {name: simulation.assets[name] for name in simulation.config["sources"]}
+    from cosim.scenario import assets_of_kind
+
+    sources = {name: simulation.assets[name]
+               for name in assets_of_kind(simulation.config, "source")}
     survey_seed = [simulation.config["simulation"]["seed"], 8]   # its own stream: the plant's
     survey = simulation.master.add(MwdSurvey(                      # draws stay unchanged
         simulation.plant.particles, sources, beta=MWD_BETA, location_error=location_error,
@@ -135,6 +138,7 @@ def load_run(run_dir, run_summary: dict | None = None) -> ProfileRun:
         run_summary = json.loads((run_dir / "summary.json").read_text())
     return ProfileRun(config=config, timeseries=pd.read_parquet(run_dir / "timeseries.parquet"),
                       particles=particles, survey=pd.read_parquet(run_dir / "mwd.parquet"),
-                      profiles={name: hardness_function(src["hardness"])
-                                for name, src in config["sources"].items()},
+                      profiles={name: hardness_function(table["hardness"])
+                                for name, table in config["assets"].items()
+                                if table["kind"] == "source"},
                       run_summary=run_summary)

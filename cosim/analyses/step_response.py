@@ -47,9 +47,11 @@ DESCRIPTION = ("the paper's hardness step at the left source and the reference r
 
 def reference_config(config: dict) -> dict:
     """The same scenario with hardness 1 at every source (the paper's reference run)."""
+    from cosim.scenario import assets_of_kind
+
     reference = copy.deepcopy(config)
-    for source in reference["sources"].values():
-        source["hardness"] = {"kind": "constant", "value": 1.0}
+    for name in assets_of_kind(reference, "source"):
+        reference["assets"][name]["hardness"] = {"kind": "constant", "value": 1.0}
     return reference
 
 
@@ -102,7 +104,8 @@ def analyse(step, reference, config: dict, hard_s: float, cycle_s: float) -> dic
     average = _moving_average(step["crusher_fmu.power"].to_numpy(),
                               int(round(config["simulation"]["sensor_window_s"] / dt)))
     risen_power = step.index[(step.index > hard_s) & (average > 1.25 * power_before)]
-    schedule = config["stockpile"]["discharge"]
+    pile = config["assets"]["stockpile"]
+    schedule = next(iter(pile["outlets"].values()))["discharge"]
     discharge_s = next((t for t, rate in schedule if rate > 0), float("nan"))
     mill = _window(step, discharge_s, step.index[-1])
     risen = mill.index[mill["mill.hardness"].to_numpy() >= RISE_THRESHOLD]
@@ -264,11 +267,11 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True,
                                         scenario_name=f"{name} (reference)")
     truck = next(a for a in step_sim.assets.values() if hasattr(a, "cycle_time"))
     hard_s = hard_ore_reached_s(out / "step" / "events.sqlite",
-                                step_sim.config["trucks"][0]["load_time_s"])
+                                step_sim.config["assets"]["trucks"]["trucks"][0]["load_time_s"])
     summary = analyse(step_sim.timeseries, ref_sim.timeseries, step_sim.config, hard_s,
                       truck.cycle_time)
     summary.update(quick=quick, simulated_s=until,
-                   storage_model=step_sim.config["stockpile"]["model"],
+                   storage_model=step_sim.config["assets"]["stockpile"]["model"],
                    wall_s=step_summary["wall_s"] + ref_summary["wall_s"])
     from cosim.plotstyle import run_label
 

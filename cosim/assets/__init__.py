@@ -10,9 +10,15 @@ All assets of a scenario share one ``Plant``: one ``ParticleStore`` (an
 asset's particles are those whose ``owner`` is the asset's index), one
 ``EventStore`` and one seeded generator. Moving particles between assets is
 ``Asset.receive``: the owner index changes and an event is recorded; no
-particle data is copied. Assets hand particles downstream inside their own
-``step``; the master steps them in plant order (source to mill), so material
-handed on is processed downstream in the same communication step.
+particle data is copied. An asset hands the particles leaving one of its
+``outlets`` to ``send(outlet, ids, t)`` inside its own ``step``; where they
+go is the flow the master wired (``Master.connect_flow``). The master steps
+the assets in the scenario's order (upstream first), so material handed on
+is processed downstream in the same communication step.
+
+A scenario lists assets by kind; each kind (``AssetKind``, registered
+through the ``minetwin.assets`` entry points, see ``cosim.kinds``) says
+which parameters it takes and builds its components.
 """
 
 from __future__ import annotations
@@ -134,31 +140,43 @@ class Asset(Component):
         Where the asset's events are located [m] (its inlet).
     """
 
+    inlets = ("feed",)
+    outlets = ("out",)
+
     def __init__(self, name: str, plant: Plant, location=(0.0, 0.0, 0.0)):
         super().__init__()
         self.name = name
         self.plant = plant
         self.owner = plant.register(name)
         self.location = tuple(float(c) for c in location)
+        self.inlet_locations = {inlet: self.location for inlet in self.inlets}
+        """Where particles entering through each inlet are [m] (default: the location)."""
 
     @property
     def particles(self):
         return self.plant.particles
 
+    def particle_masses(self, ids: np.ndarray) -> np.ndarray:
+        """Masses [kg] of the particles ``ids``."""
+        return self.particles.mass[self.particles.slots(ids)]
+
     def held_mass(self) -> float:
         return float(self.particles.mass[self.particles.owner == self.owner].sum())
 
-    def receive(self, ids: np.ndarray, t: float) -> None:
-        """Take over particles ``ids`` at time ``t``: new owner and an "enter" event."""
+    def receive(self, ids: np.ndarray, t: float, inlet: str | None = None) -> None:
+        """Take over particles ``ids`` at time ``t`` through ``inlet`` (default: the first):
+        new owner and an "enter" event."""
         if ids.size == 0:
             return
+        inlet = self.inlets[0] if inlet is None else inlet
+        location = self.inlet_locations[inlet]
         slots = self.particles.slots(ids)
         self.particles.set_owner(slots, self.owner, t)
-        self.particles.position[slots] = self.location
-        self.plant.record("enter", self.name, t, slots, self.location)
-        self._accept(ids, t)
+        self.particles.position[slots] = location
+        self.plant.record("enter", self.name, t, slots, location)
+        self._accept(ids, t, inlet)
 
-    def _accept(self, ids: np.ndarray, t: float) -> None:
+    def _accept(self, ids: np.ndarray, t: float, inlet: str) -> None:
         """Hook: queue the received particles (subclasses)."""
 
 
@@ -179,6 +197,9 @@ class AssetSensors:
     scenario samples at its recording interval.
     """
 
+    names = ("hardness", "hardness_avg", "grade", "grade_avg", "d_mean", "d_mean_avg")
+    """The readings, in order."""
+
     def __init__(self, owner: int, window: float = 30.0, interval: float = 0.0):
         self.owner = owner
         self.window = float(window)
@@ -190,8 +211,7 @@ class AssetSensors:
 
     @staticmethod
     def _empty() -> dict[str, float]:
-        return {key: float("nan") for key in ("hardness", "hardness_avg", "grade", "grade_avg",
-                                              "d_mean", "d_mean_avg")}
+        return {key: float("nan") for key in AssetSensors.names}
 
     def sample(self, particles, t: float, slots=None) -> dict[str, float]:
         """Observe at time ``t`` (at most once per ``interval``); the readings.
@@ -274,6 +294,9 @@ class PlantBalance(Component):
     appeared) and ``particles`` (count held). Add it last, so it sees every
     asset's step.
     """
+
+    output_names = ("mass_in_kg", "mass_held_kg", "mass_out_kg", "mass_balance_rel_error",
+                    "particles")
 
     def __init__(self, plant: Plant, name: str = "plant"):
         super().__init__()

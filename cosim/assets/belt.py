@@ -24,9 +24,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from pydantic import model_validator
 
 from cosim.assets import Asset, Plant
 from cosim.errors import ValidationError
+from cosim.kinds import AssetKind
+from cosim.params import MAX_BLOCKS, MAX_LENGTH_M, Parameters, Position, number, refuse
 
 
 class BeltConveyor(Asset):
@@ -45,13 +48,14 @@ class BeltConveyor(Asset):
         Belt speed [m/s] (default 2.0); the ``speed`` input overrides it.
     bin_length : float
         Bin length [m] (default 1.0).
-    downstream : Asset
-        Receives the discharged particles.
+    Particles enter at inlet ``feed`` (several flows into it merge on the
+    belt) and leave at outlet ``out`` (several flows out of it split by mass).
     """
 
     input_names = ("speed", "running")
+    output_names = ("mass_kg", "delivered_kg", "running")
 
-    def __init__(self, name: str, plant: Plant, *, start, end, downstream,
+    def __init__(self, name: str, plant: Plant, *, start, end,
                  speed: float = 2.0, bin_length: float = 1.0, length: float | None = None):
         super().__init__(name, plant, location=start)
         self.start = np.asarray(start, dtype=float)
@@ -63,7 +67,6 @@ class BeltConveyor(Asset):
             raise ValidationError(f"{name}.bin_length", "> 0 m", f"got {bin_length!r}")
         self.speed = float(speed)
         self.bin_length = float(bin_length)
-        self.downstream = downstream
         self._direction = (self.end - self.start) / max(math.dist(self.end, self.start),
                                                         1e-12)
         self._travel = 0.0
@@ -72,7 +75,7 @@ class BeltConveyor(Asset):
         self._mass_kg = 0.0
         self._delivered_kg = 0.0
 
-    def _accept(self, ids: np.ndarray, t: float) -> None:
+    def _accept(self, ids: np.ndarray, t: float, inlet: str) -> None:
         bin_start = np.floor(self._travel / self.bin_length) * self.bin_length
         self._ids = np.concatenate((self._ids, ids))
         self._bin_start = np.concatenate((self._bin_start, np.full(ids.size, bin_start)))
@@ -98,10 +101,57 @@ class BeltConveyor(Asset):
             store.position[out_slots] = self.end
             self._delivered_kg += float(store.mass[out_slots].sum())
             self.plant.record("exit", self.name, t + dt, out_slots, tuple(self.end))
-            self.downstream.receive(leaving, t + dt)
+            self.send("out", leaving, t + dt)
         store.position[slots] = self.start + distance[:, None] * self._direction
         self._mass_kg = float(store.mass[slots].sum())
 
     def outputs(self) -> dict[str, float]:
         return {"mass_kg": self._mass_kg, "delivered_kg": self._delivered_kg,
                 "running": 1.0 if float(self.inputs.get("running", 1.0)) > 0.5 else 0.0}
+
+
+# ------------------------------------------------------------------ scenario kind
+class BeltParameters(Parameters):
+    """``[assets.NAME] kind = "belt"``: see ``BeltConveyor``."""
+
+    start_m: Position
+    """Loading point [m]."""
+    end_m: Position
+    """Discharge point [m]."""
+    length_m: number(0.0, MAX_LENGTH_M, low_open=True, unit="m") | None = None
+    """Belt length [m] (default: the distance from start to end)."""
+    speed_m_s: number(0.0, 20.0, unit="m/s") = 2.0
+    bin_length_m: number(0.0, MAX_LENGTH_M, low_open=True, unit="m") | None = None
+    """[m]; default: 1 m or the length if shorter."""
+
+    @model_validator(mode="after")
+    def _complete(self):
+        if self.length_m is None:
+            self.length_m = math.dist(self.start_m, self.end_m)
+            if not self.length_m > 0:
+                raise refuse("length_m", "> 0 m (give it, or a start away from the end)",
+                             "start_m == end_m")
+        if self.bin_length_m is None:
+            self.bin_length_m = min(1.0, self.length_m)
+        low = self.length_m / MAX_BLOCKS
+        if not low <= self.bin_length_m <= self.length_m:
+            raise refuse("bin_length_m", f"finite and >= {low:g} and <= {self.length_m:g} m",
+                         f"got {self.bin_length_m!r}")
+        return self
+
+
+class BeltKind(AssetKind):
+    """A belt conveyor (``BeltConveyor``): inlet ``feed`` (flows into it merge), outlet
+    ``out`` (several flows out of it split by their fractions)."""
+
+    Parameters = BeltParameters
+    component = BeltConveyor
+
+    def location(self, parameters, inlet):
+        return list(parameters.start_m)
+
+    def build(self, name, p, context):
+        belt = BeltConveyor(name, context.plant, start=p.start_m, end=p.end_m,
+                            speed=p.speed_m_s, bin_length=p.bin_length_m, length=p.length_m)
+        context.add(belt)
+        return [belt]

@@ -38,9 +38,13 @@ Virtual sensors (hardness, grade, size) over the zone.
 from __future__ import annotations
 
 import numpy as np
+from pydantic import model_validator
 
 from cosim.assets import Asset, AssetSensors, Plant
 from cosim.comminution import apply_fragmentation
+from cosim.errors import ValidationError
+from cosim.kinds import AssetKind
+from cosim.params import FmuParameters, Parameters, Position, Text, number, refuse_from
 from cosim.master import CosimulationError
 from cosim.numerics import weighted_column_sums
 
@@ -63,8 +67,6 @@ class JawCrusher(Asset):
     jaw_throughput : float
         Mass passing the jaw per second while the zone holds material
         [kg/s] (default 1000).
-    downstream : Asset
-        Receives the crushed particles (the first conveyor).
     sensor_window : float
         Moving-average window of the zone's virtual sensors [s] (30).
     sensor_interval : float
@@ -72,8 +74,11 @@ class JawCrusher(Asset):
     """
 
     input_names = ("fragmentation_map", "discharge_enabled")
+    outlets = ("product",)
+    output_names = ("zone_hardness_mass", "zone_mass_kg", "hopper_mass_kg", "passed_kg",
+                    *(f"zone_{key}" for key in AssetSensors.names))
 
-    def __init__(self, name: str, plant: Plant, *, location, downstream,
+    def __init__(self, name: str, plant: Plant, *, location,
                  zone_capacity: float = 900.0, jaw_throughput: float = 1000.0,
                  sensor_window: float = 30.0, sensor_interval: float = 0.0):
         super().__init__(name, plant, location=location)
@@ -81,7 +86,6 @@ class JawCrusher(Asset):
         self.zone_name = f"{name}_zone"
         self.jaw_name = f"{name}_jaw"
         self.zone_location = tuple(np.asarray(location, float) - (0.0, 0.0, 3.0))
-        self.downstream = downstream
         self.zone_capacity = float(zone_capacity)
         self.jaw_throughput = float(jaw_throughput)
         self._hopper = EMPTY_IDS
@@ -93,7 +97,7 @@ class JawCrusher(Asset):
         self._sensors = AssetSensors(self.zone_owner, sensor_window, sensor_interval)
         self._readings = self._sensors.readings
 
-    def _accept(self, ids: np.ndarray, t: float) -> None:
+    def _accept(self, ids: np.ndarray, t: float, inlet: str) -> None:
         self._hopper = np.concatenate((self._hopper, ids))
 
     def step(self, t: float, dt: float) -> None:
@@ -133,7 +137,7 @@ class JawCrusher(Asset):
         self.plant.record("exit", self.zone_name, t, slots, self.zone_location)
         store.f[slots] = apply_fragmentation(store.f[slots], np.asarray(fragmentation))
         self.plant.record("pass", self.jaw_name, t, slots, self.zone_location)
-        self.downstream.receive(passing, t)
+        self.send("product", passing, t)
 
     def _refill(self, t: float) -> None:
         if self._hopper.size == 0:
@@ -165,3 +169,56 @@ class JawCrusher(Asset):
             "passed_kg": self._passed_kg,
             **{f"zone_{key}": value for key, value in self._readings.items()},
         }
+
+
+# ------------------------------------------------------------------ scenario kind
+class CrusherParameters(Parameters):
+    """``[assets.NAME] kind = "crusher"``: a ``JawCrusher`` queue-and-zone asset with its
+    crusher FMU (the jaw crusher ``"crusher"``, the cone crusher ``"cone_crusher"``, or any
+    FMU with ``cosim.fmu.CRUSHER_INTERFACE``)."""
+
+    position_m: Position
+    """Hopper (the trucks' dump point) [m]."""
+    fmu: Text = "crusher"
+    """A built FMU name (fmus/build) or an .fmu path."""
+    speed_rad_s: number(0.0, 1000.0, unit="rad/s") = 10.0
+    zone_capacity_kg: number(0.0, 1e6, low_open=True, unit="kg") = 900.0
+    jaw_throughput_kg_s: number(0.0, 1e5, low_open=True, unit="kg/s") = 1000.0
+    parameters: FmuParameters = {}
+    """FMU parameters (checked against the FMU's declared variables and ranges)."""
+
+    @model_validator(mode="after")
+    def _fmu(self):
+        from cosim.fmu import check_fmu_parameters
+
+        try:
+            check_fmu_parameters(self.fmu, self.parameters)
+        except ValidationError as exc:
+            raise refuse_from(exc) from None
+        return self
+
+
+class CrusherKind(AssetKind):
+    """A crusher (``JawCrusher``) and its FMU ``<name>_fmu``: inlet ``feed``, outlet
+    ``product``; the FMU's torque model and fragmentation map (fmus/README.md)."""
+
+    Parameters = CrusherParameters
+    component = JawCrusher
+
+    def build(self, name, p, context):
+        from cosim.fmu import CRUSHER_INTERFACE, FmuComponent, resolve_fmu
+
+        sim = context.simulation
+        crusher = JawCrusher(name, context.plant, location=p.position_m,
+                             zone_capacity=p.zone_capacity_kg,
+                             jaw_throughput=p.jaw_throughput_kg_s,
+                             sensor_window=sim["sensor_window_s"],
+                             sensor_interval=sim["record_every_s"])
+        physics = FmuComponent(resolve_fmu(p.fmu), interface=CRUSHER_INTERFACE,
+                               name=f"{name}_fmu", parameters=p.parameters)
+        physics.set_input("speed", p.speed_rad_s)
+        context.add(crusher)
+        context.add(physics)
+        context.connect(crusher, "zone_hardness_mass", physics, "zone_hardness_mass")
+        context.connect(physics, "fragmentation_map", crusher, "fragmentation_map")
+        return [crusher]

@@ -23,9 +23,13 @@ product) and is removed from the particle store.
 from __future__ import annotations
 
 import numpy as np
+from pydantic import model_validator
 
 from cosim.assets import EVENT_FIELDS, Asset, AssetSensors, Plant
 from cosim.comminution import mill_step
+from cosim.errors import ValidationError
+from cosim.kinds import AssetKind
+from cosim.params import FmuParameters, Parameters, Position, Text, number, refuse_from
 from cosim.master import CosimulationError
 from cosim.numerics import weighted_column_sums
 
@@ -64,6 +68,9 @@ class Mill(Asset):
     """
 
     input_names = OPERATOR_INPUTS
+    outlets = ()    # the product leaves the plant
+    output_names = ("charge_mass", "mass_kg", "product_kg", "product_rate_kg_s",
+                    *AssetSensors.names)
 
     def __init__(self, name: str, plant: Plant, *, location, product_threshold: float = 0.01,
                  product_event_interval: float = 60.0, method: str = "exponential",
@@ -85,7 +92,7 @@ class Mill(Asset):
         self._sensors = AssetSensors(self.owner, sensor_window, sensor_interval)
         self._readings = self._sensors.readings
 
-    def _accept(self, ids: np.ndarray, t: float) -> None:
+    def _accept(self, ids: np.ndarray, t: float, inlet: str) -> None:
         self._ids = np.concatenate((self._ids, ids))
         self._pending = np.concatenate((self._pending, np.zeros(ids.size)))
 
@@ -156,3 +163,55 @@ class Mill(Asset):
         return {"charge_mass": self._charge, "mass_kg": float(self._charge.sum()),
                 "product_kg": self._product_kg, "product_rate_kg_s": self._product_rate,
                 **self._readings}
+
+
+# ------------------------------------------------------------------ scenario kind
+class MillParameters(Parameters):
+    """``[assets.NAME] kind = "mill"``: a ``Mill`` with its mill FMU (``"mill"`` or any FMU
+    with ``cosim.fmu.MILL_INTERFACE``)."""
+
+    position_m: Position
+    """Mill inlet [m]."""
+    fmu: Text = "mill"
+    speed_rad_s: number(0.0, 100.0, unit="rad/s") = 1.2
+    product_threshold_kg: number(0.0, 1e3, low_open=True, unit="kg") = 0.01
+    product_event_interval_s: number(0.0, 1e5, low_open=True, unit="s") = 60.0
+    update_interval_s: number(0.0, 60.0, unit="s") = 0.0
+    parameters: FmuParameters = {}
+
+    @model_validator(mode="after")
+    def _fmu(self):
+        from cosim.fmu import check_fmu_parameters
+
+        try:
+            check_fmu_parameters(self.fmu, self.parameters)
+        except ValidationError as exc:
+            raise refuse_from(exc) from None
+        return self
+
+
+class MillKind(AssetKind):
+    """A mill (``Mill``) and its FMU ``<name>_fmu``: inlet ``feed``; the product leaves the
+    plant (no outlet)."""
+
+    Parameters = MillParameters
+    component = Mill
+
+    def build(self, name, p, context):
+        from cosim.fmu import MILL_INTERFACE, FmuComponent, resolve_fmu
+
+        sim = context.simulation
+        mill = Mill(name, context.plant, location=p.position_m,
+                    product_threshold=p.product_threshold_kg,
+                    product_event_interval=p.product_event_interval_s,
+                    update_interval=p.update_interval_s, sensor_window=sim["sensor_window_s"],
+                    sensor_interval=sim["record_every_s"])
+        physics = FmuComponent(resolve_fmu(p.fmu), interface=MILL_INTERFACE,
+                               name=f"{name}_fmu", parameters=p.parameters)
+        physics.set_input("speed_setpoint", p.speed_rad_s)
+        context.add(mill)
+        context.add(physics)
+        context.connect(mill, "charge_mass", physics, "charge_mass")
+        for signal in OPERATOR_INPUTS:
+            context.connect(physics, signal, mill, signal)
+        return [mill]

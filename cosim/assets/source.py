@@ -22,16 +22,19 @@ particles at the loading point.
 from __future__ import annotations
 
 import numpy as np
+from pydantic import model_validator
 
 from cosim.assets import Asset, Plant
 from cosim.blockmodel import BlockModel
 from cosim.errors import ValidationError, check_finite_range
+from cosim.kinds import AssetKind
 from cosim.master import CosimulationError
+from cosim.params import MAX_BLOCKS, MAX_LENGTH_M, Parameters, Position, number, refuse
 from cosim.sizes import blasted_fractions
 
 
 class Source(Asset):
-    """A loading point in a blasted ore body.
+    """A loading point in a blasted ore body (loaded by the trucks whose route names it).
 
     Parameters
     ----------
@@ -65,6 +68,10 @@ class Source(Asset):
         Keyword arguments of ``blasted_fractions`` (x50 [m], x_max [m], b,
         x50_spread).
     """
+
+    inlets = ()
+    outlets = ()
+    output_names = ("face_m", "hardness_at_face", "mass_taken_kg")
 
     def __init__(self, name: str, plant: Plant, *, loading_point, origin, hardness,
                  grade: float, length: float, face_width: float, face_height: float,
@@ -144,3 +151,99 @@ class Source(Asset):
 
     def outputs(self) -> dict[str, float]:
         return self._outputs
+
+
+# ------------------------------------------------------------------ scenario kind
+
+
+class BlastParameters(Parameters):
+    """After-blast size distribution (Swebrec, ``cosim.sizes.blasted_fractions``)."""
+
+    x50_m: number(1e-5, 10.0, low_open=True, unit="m") = 0.1
+    x_max_m: number(1e-4, 10.0, unit="m") = 1.0
+    b: number(0.0, 20.0, low_open=True) = 2.0
+    x50_spread: number(0.0, 2.0) = 0.15
+
+    @model_validator(mode="after")
+    def _median_below_largest(self):
+        if self.x50_m > self.x_max_m:
+            raise refuse("x50_m", f"finite and > 1e-05 and <= {self.x_max_m:g} m",
+                         f"got {self.x50_m!r}")
+        return self
+
+
+class SourceParameters(Parameters):
+    """``[assets.NAME] kind = "source"``: see ``Source`` for each parameter's meaning."""
+
+    loading_point_m: Position
+    ore_body_origin_m: Position | None = None
+    """[m]; default: the loading point."""
+    grade: number(0.0, 1.0)
+    hardness: dict
+    """Table ``kind = "constant" | "step" | "quadratic"`` and its parameters
+    (``cosim.blockmodel.hardness_function``)."""
+    length_m: number(0.0, MAX_LENGTH_M, low_open=True, unit="m")
+    face_width_m: number(0.0, MAX_LENGTH_M, low_open=True, unit="m")
+    face_height_m: number(0.0, MAX_LENGTH_M, low_open=True, unit="m")
+    block_length_m: number(0.0, MAX_LENGTH_M, low_open=True, unit="m") = 1.0
+    density_kg_m3: number(100.0, 20000.0, unit="kg/m^3") = 2700.0
+    particle_mass_kg: number(0.0, 1e5, low_open=True, unit="kg") = 100.0
+    particle_mass_spread: number(0.0, 0.99) = 0.5
+    blast: BlastParameters = BlastParameters()
+
+    @model_validator(mode="after")
+    def _complete(self):
+        if self.ore_body_origin_m is None:
+            self.ore_body_origin_m = list(self.loading_point_m)
+        smallest_block = self.length_m / MAX_BLOCKS
+        if self.block_length_m < smallest_block:
+            raise refuse("block_length_m",
+                         f">= {smallest_block:g} m (length_m / {MAX_BLOCKS:,} blocks)",
+                         f"got {self.block_length_m!r}")
+        self.hardness = _checked_hardness(self.hardness)
+        return self
+
+
+def _checked_hardness(spec: dict) -> dict:
+    import math
+
+    from cosim.blockmodel import hardness_function
+
+    for key, value in spec.items():
+        if key != "kind" and (isinstance(value, bool) or not isinstance(value, (int, float))
+                              or not math.isfinite(value)):
+            raise refuse(f"hardness.{key}", "a finite number", f"got {value!r}")
+    try:
+        profile = hardness_function(spec)
+    except ValidationError as exc:
+        raise refuse(f"hardness.{exc.field.split('.')[-1]}", exc.allowed) from None
+    probe = profile(np.linspace(0.0, 1000.0, 101))
+    if not np.all(probe > 0):
+        raise refuse("hardness", "a profile with hardness > 0 everywhere",
+                     f"min {probe.min():g}")
+    return dict(spec)
+
+
+class SourceKind(AssetKind):
+    """An ore source (``Source``): loaded by the trucks whose route names it; no ports."""
+
+    Parameters = SourceParameters
+    component = Source
+    loadable = True
+
+    def location(self, parameters, inlet):
+        return list(parameters.loading_point_m)
+
+    def build(self, name, p, context):
+        from cosim.blockmodel import hardness_function
+
+        source = Source(
+            name, context.plant, loading_point=p.loading_point_m, origin=p.ore_body_origin_m,
+            hardness=hardness_function(p.hardness), grade=p.grade, length=p.length_m,
+            face_width=p.face_width_m, face_height=p.face_height_m,
+            block_length=p.block_length_m, density=p.density_kg_m3,
+            particle_mass=p.particle_mass_kg, particle_mass_spread=p.particle_mass_spread,
+            blast={"x50": p.blast.x50_m, "x_max": p.blast.x_max_m, "b": p.blast.b,
+                   "x50_spread": p.blast.x50_spread})
+        context.add(source)
+        return [source]

@@ -11,10 +11,11 @@ first-in-first-out or perfect mixing to a physics-based flow model.
 Model. Which particles leave, and when, is decided by a storage model from
 ``cosim.storage.registered_models()`` chosen by name ("fifo", "mixing", and any
 model other issues register: "rom", "dem"); this asset only does the
-bookkeeping around it: inlet ("enter" events, ``receive``), the discharge
-rate (a piecewise-constant schedule [(t_i, rate_i)] in kg/s, overridden by
-the input ``discharge_rate`` when connected), the outlet ("exit" events,
-hand-over downstream) and the capacity: output ``inlet_open`` is 0 while
+bookkeeping around it: the inlets ("enter" events, ``receive``), the
+discharge rate of each outlet (a piecewise-constant schedule [(t_i, rate_i)]
+in kg/s, overridden by the input ``discharge_rate_<outlet>`` when
+connected), the outlets ("exit" events, hand-over along the flows) and the
+capacity: output ``inlet_open`` is 0 while
 the held mass is at or above ``capacity`` [kg], which the scenario wires
 to stop the feeding conveyor. The held mass is kept as received minus
 discharged (particles do not change mass in storage), not re-summed every
@@ -23,15 +24,19 @@ step.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
+from pydantic import model_validator
 
 from cosim.assets import Asset, AssetSensors, Plant
 from cosim.errors import ValidationError
+from cosim.kinds import AssetKind
+from cosim.params import Parameters, Position, Schedule, Text, number, refuse, refuse_from
 from cosim.storage import MAX_DISCHARGE_RATE, StorageModel, check_discharge_rate
 
 
 class Stockpile(Asset):
-    """Intermediate storage with a pluggable storage model.
+    """Intermediate storage with a pluggable storage model, several inlets and outlets.
 
     Parameters
     ----------
@@ -41,68 +46,269 @@ class Stockpile(Asset):
         The shared plant.
     model : StorageModel
         The storage model (``cosim.storage.make_storage(name)``); bound here.
-    location : (3,) array_like
-        Inlet (top of the pile) [m]; ``outlet`` is the feeder [m].
+    inlets : dict of name -> (3,) array_like
+        Entry points and where they are [m] (the paper's pile has two); the
+        asset's location is the first one's.
+    outlets : dict of name -> ((3,) array_like, list of (time [s], rate [kg/s]))
+        Exit points (the paper's pile has four), each with its position [m]
+        and its own piecewise-constant feeder schedule; before the first time
+        the rate is 0. Rates in [0, 2000] kg/s (paper: up to 2 t/s). Input
+        ``discharge_rate_<outlet>`` [kg/s] overrides an outlet's schedule.
     capacity : float
         Largest held mass [kg] (paper: 2,000 t).
-    discharge : list of (time [s], rate [kg/s])
-        Piecewise-constant feeder schedule; before the first time the rate
-        is 0. Rates in [0, 2000] kg/s (paper: up to 2 t/s).
-    downstream : Asset
-        Receives the discharged particles (the mill conveyor).
     sensor_window, sensor_interval : float
         Moving-average window of the pile's virtual sensors [s] (30) and
         least time between their samples [s] (0: every step).
+
+    The storage model decides which particles leave at the outlets' summed
+    rate; with several outlets each takes, in the order they leave, the
+    particles its own mass credit (rate x time) pays for. That is exact for
+    models without geometry (FIFO, mixing: every outlet draws on one queue);
+    a model that resolves where the outlets are would choose per outlet.
+    Outputs ``discharge_rate_kg_s`` and ``discharged_kg`` are the totals;
+    with several outlets ``discharge_rate_kg_s_<outlet>`` and
+    ``discharged_kg_<outlet>`` follow each.
     """
 
-    input_names = ("discharge_rate",)
-
-    def __init__(self, name: str, plant: Plant, *, model: StorageModel, location, outlet,
-                 downstream, capacity: float = 2.0e6, discharge=((0.0, 0.0),),
-                 sensor_window: float = 30.0, sensor_interval: float = 0.0):
-        super().__init__(name, plant, location=location)
-        self.outlet = tuple(float(c) for c in outlet)
+    def __init__(self, name: str, plant: Plant, *, model: StorageModel, inlets: dict,
+                 outlets: dict, capacity: float = 2.0e6, sensor_window: float = 30.0,
+                 sensor_interval: float = 0.0):
+        if not inlets or not outlets:
+            raise ValidationError(f"{name}.inlets", "at least one inlet and one outlet")
+        locations = {inlet: tuple(float(c) for c in where) for inlet, where in inlets.items()}
+        self.inlets = tuple(inlets)
+        self.outlets = tuple(outlets)
+        super().__init__(name, plant, location=next(iter(locations.values())))
+        self.inlet_locations = locations
+        self.outlet_locations = {outlet: tuple(float(c) for c in where)
+                                 for outlet, (where, _) in outlets.items()}
+        self.input_names = tuple(f"discharge_rate_{outlet}" for outlet in self.outlets)
+        self._rate_inputs = tuple(zip(self.outlets, self.input_names))
         self.model = model.bind(plant.particles, self.owner)
         self.capacity = float(capacity)
-        schedule = sorted((float(t), check_discharge_rate(r, MAX_DISCHARGE_RATE))
-                          for t, r in discharge)
-        if not schedule:
-            raise ValidationError(f"{name}.discharge", "a non-empty list of [time_s, rate_kg_s]")
-        self._times = np.array([t for t, _ in schedule])
-        self._rates = np.array([r for _, r in schedule])
-        self.downstream = downstream
+        self._schedules = {}
+        for outlet, (_, discharge) in outlets.items():
+            schedule = sorted((float(t), check_discharge_rate(r, MAX_DISCHARGE_RATE))
+                              for t, r in discharge)
+            if not schedule:
+                raise ValidationError(f"{name}.outlets.{outlet}.discharge",
+                                      "a non-empty list of [time_s, rate_kg_s]")
+            self._schedules[outlet] = (np.array([t for t, _ in schedule]),
+                                       np.array([r for _, r in schedule]))
         self._held_kg = 0.0
+        self._rate_kg_s = 0.0
         self._discharged_kg = 0.0
-        self._rate = 0.0
+        self._discharged = {outlet: 0.0 for outlet in self.outlets}
+        self._rates = {outlet: 0.0 for outlet in self.outlets}
+        self._credit = np.zeros(len(self.outlets))
         self._sensors = AssetSensors(self.owner, sensor_window, sensor_interval)
         self._readings = self._sensors.readings
+        self._several = several = len(self.outlets) > 1
+        self.output_names = ("mass_kg", "discharge_rate_kg_s", "discharged_kg", "inlet_open",
+                             *AssetSensors.names,
+                             *(f"{key}_{outlet}" for outlet in self.outlets if several
+                               for key in ("discharge_rate_kg_s", "discharged_kg")))
 
-    def scheduled_rate(self, t: float) -> float:
-        """Feeder rate of the schedule at time ``t`` [kg/s]."""
-        k = int(np.searchsorted(self._times, t, side="right")) - 1
-        return float(self._rates[k]) if k >= 0 else 0.0
+    def scheduled_rate(self, t: float, outlet: str | None = None) -> float:
+        """Feeder rate of ``outlet``'s schedule at time ``t`` [kg/s]; without ``outlet``,
+        the sum over the outlets (what the storage model is asked to discharge)."""
+        if outlet is None:
+            return sum(self.scheduled_rate(t, name) for name in self.outlets)
+        times, rates = self._schedules[outlet]
+        k = int(np.searchsorted(times, t, side="right")) - 1
+        return float(rates[k]) if k >= 0 else 0.0
 
-    def _accept(self, ids: np.ndarray, t: float) -> None:
+    def _accept(self, ids: np.ndarray, t: float, inlet: str) -> None:
         self._held_kg += float(self.particles.mass[self.particles.slots(ids)].sum())
         self.model.receive(ids, t)
 
     def step(self, t: float, dt: float) -> None:
-        rate = self.inputs.get("discharge_rate")
-        self._rate = self.scheduled_rate(t) if rate is None else check_discharge_rate(rate)
-        leaving = self.model.step(t, dt, self._rate)
+        total = 0.0
+        for outlet, name in self._rate_inputs:
+            rate = self.inputs.get(name)
+            rate = self.scheduled_rate(t, outlet) if rate is None else check_discharge_rate(rate)
+            self._rates[outlet] = rate
+            total += rate
+        self._rate_kg_s = total
+        leaving = self.model.step(t, dt, total)
         store = self.particles
-        if leaving.size:
-            slots = store.slots(leaving)
-            store.position[slots] = self.outlet
-            leaving_kg = float(store.mass[slots].sum())
-            self._discharged_kg += leaving_kg
-            self._held_kg -= leaving_kg
-            self.plant.record("exit", self.name, t + dt, slots, self.outlet)
-            self.downstream.receive(leaving, t + dt)
+        if not self._several:
+            if leaving.size:
+                self._discharge(store, self.outlets[0], leaving, store.slots(leaving), t + dt)
+        else:
+            self._credit += np.array([self._rates[o] for o in self.outlets]) * dt
+            if leaving.size:
+                slots = store.slots(leaving)
+                choice = _credit_choice(store.mass[slots], self._credit)
+                for k, outlet in enumerate(self.outlets):
+                    mine = choice == k
+                    if mine.any():
+                        self._discharge(store, outlet, leaving[mine], slots[mine], t + dt)
+            if self.model.held_ids().size == 0:
+                self._credit[:] = 0.0     # an empty pile owes nothing (as the feeder's credit)
         self._readings = self._sensors.sample(store, t + dt)
 
+    def _discharge(self, store, outlet: str, ids, slots, t: float) -> None:
+        where = self.outlet_locations[outlet]
+        store.position[slots] = where
+        leaving_kg = float(store.mass[slots].sum())
+        self._discharged[outlet] += leaving_kg
+        self._discharged_kg += leaving_kg
+        self._held_kg -= leaving_kg
+        self.plant.record("exit", self.name, t, slots, where)
+        self.send(outlet, ids, t)
+
     def outputs(self) -> dict[str, float]:
-        return {"mass_kg": self._held_kg, "discharge_rate_kg_s": self._rate,
-                "discharged_kg": self._discharged_kg,
-                "inlet_open": 1.0 if self._held_kg < self.capacity else 0.0,
-                **self._readings}
+        out = {"mass_kg": self._held_kg, "discharge_rate_kg_s": self._rate_kg_s,
+               "discharged_kg": self._discharged_kg,
+               "inlet_open": 1.0 if self._held_kg < self.capacity else 0.0,
+               **self._readings}
+        if self._several:
+            for outlet in self.outlets:
+                out[f"discharge_rate_kg_s_{outlet}"] = self._rates[outlet]
+                out[f"discharged_kg_{outlet}"] = self._discharged[outlet]
+        return out
+
+
+@numba.njit(cache=True)
+def _credit_choice(masses, credit):
+    """Outlet per leaving particle: the one with the most credit [kg] (updated in place)."""
+    choice = np.empty(masses.size, dtype=np.int64)
+    for i in range(masses.size):
+        best = 0
+        for k in range(1, credit.size):
+            if credit[k] > credit[best]:
+                best = k
+        choice[i] = best
+        credit[best] -= masses[i]
+    return choice
+
+
+# ------------------------------------------------------------------ scenario kind
+class InletParameters(Parameters):
+    position_m: Position
+    """Where the inlet is [m] (the paper's pile: on top)."""
+
+
+class OutletParameters(Parameters):
+    position_m: Position
+    """Where the outlet's feeder is [m] (the paper's pile: at the bottom)."""
+    discharge: Schedule = [[0.0, 0.0]]
+    """Feeder schedule [[time_s, rate_kg_s], ...] (rates <= 2000 kg/s)."""
+
+
+class InitialFill(Parameters):
+    """Earlier production in the pile at t = 0 (``fill_stockpile``)."""
+
+    mass_kg: number(0.0, 1e9, unit="kg")
+    trucks: Text
+    """The truck fleet whose first truck's loads (route and payload) fill the pile."""
+    crusher: Text
+    """The crusher whose FMU's fragmentation map crushed them."""
+
+
+class StockpileParameters(Parameters):
+    """``[assets.NAME] kind = "stockpile"``: see ``Stockpile``; ``inlets`` and ``outlets``
+    are tables of named entry and exit points (``[assets.NAME.outlets.east]``)."""
+
+    model: Text = "fifo"
+    """Storage model (``cosim.storage``): fifo, mixing, rom, dem, ..."""
+    options: dict = {}
+    """Keyword options of the storage model."""
+    capacity_kg: number(0.0, 1e9, low_open=True, unit="kg") = 2.0e6
+    inlets: dict[str, InletParameters]
+    outlets: dict[str, OutletParameters]
+    initial_fill: InitialFill | None = None
+
+    @model_validator(mode="after")
+    def _complete(self):
+        from cosim.storage import check_storage_options, storage_class
+
+        if not self.inlets:
+            raise refuse("inlets", "at least one [inlets.NAME] table", "got none")
+        if not self.outlets:
+            raise refuse("outlets", "at least one [outlets.NAME] table", "got none")
+        try:
+            storage_class(self.model, "model")
+            check_storage_options(self.model, self.options, "options")
+        except ValidationError as exc:
+            raise refuse_from(exc) from None
+        if self.initial_fill is not None and self.initial_fill.mass_kg > self.capacity_kg:
+            raise refuse("initial_fill.mass_kg", f"finite and >= 0 and <= {self.capacity_kg:g}"
+                         " kg (the capacity)", f"got {self.initial_fill.mass_kg!r}")
+        return self
+
+
+class StockpileKind(AssetKind):
+    """A stockpile (``Stockpile``) with its storage model; named inlets and outlets."""
+
+    Parameters = StockpileParameters
+    component = Stockpile
+
+    def ports(self, parameters):
+        return tuple(parameters.inlets), tuple(parameters.outlets)
+
+    def location(self, parameters, inlet):
+        return list(parameters.inlets[inlet].position_m)
+
+    def check(self, name, parameters, plant):
+        fill = parameters.initial_fill
+        if fill is None:
+            return []
+        declared = list(plant.assets)
+        before = declared[:declared.index(name)]
+        errors = []
+        for key, wanted in (("trucks", "truck_fleet"), ("crusher", "crusher")):
+            value = getattr(fill, key)
+            if value not in before or plant.kind_names[value] != wanted:
+                errors.append(ValidationError(
+                    f"assets.{name}.initial_fill.{key}",
+                    f"a {wanted} asset declared before {name}", f"got {value!r}"))
+        return errors
+
+    def build(self, name, p, context):
+        sim = context.simulation
+        pile = Stockpile(name, context.plant, model=_storage(p.model, p.options, [sim["seed"], 1]),
+                         inlets={k: v.position_m for k, v in p.inlets.items()},
+                         outlets={k: (v.position_m, v.discharge) for k, v in p.outlets.items()},
+                         capacity=p.capacity_kg, sensor_window=sim["sensor_window_s"],
+                         sensor_interval=sim["record_every_s"])
+        context.add(pile)
+        fill = p.initial_fill
+        if fill is not None and fill.mass_kg > 0:
+            crusher_fmu = next(c for c in context.master.components
+                               if c.name == f"{fill.crusher}_fmu")
+            fill_stockpile(pile, context.built[fill.trucks][0],
+                           crusher_fmu.outputs()["fragmentation_map"], fill.mass_kg)
+        return [pile]
+
+
+def _storage(name: str, options: dict, rng_seed) -> StorageModel:
+    from cosim.storage import make_storage
+
+    return make_storage(name, rng=np.random.default_rng(rng_seed), **options)
+
+
+def fill_stockpile(stockpile, truck, fragmentation_map, mass: float) -> None:
+    """Put ``mass`` [kg] of earlier production into the stockpile at t = 0.
+
+    The material is what the plant would have made before the run: truck
+    loads of ``truck.payload`` [kg] taken in turn from the truck's route
+    (the loading faces advance, "appear" events at t = 0) and crushed with
+    the crusher FMU's fragmentation map, then received by the stockpile
+    ("enter" events at t = 0, first inlet). It gives the stockpile the
+    paper's scale (2,000 t, about 20,000 particles) without simulating the
+    hours of filling.
+    """
+    from cosim.comminution import apply_fragmentation
+
+    store = stockpile.particles
+    remaining, k = float(mass), 0
+    while remaining > 1e-9:
+        load = min(truck.payload, remaining)
+        ids = truck.route[k % len(truck.route)].take(load, 0.0)
+        slots = store.slots(ids)
+        store.f[slots] = apply_fragmentation(store.f[slots], fragmentation_map)
+        stockpile.receive(ids, 0.0)
+        remaining -= load
+        k += 1

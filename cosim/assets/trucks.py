@@ -30,8 +30,15 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from pydantic import model_validator
 
 from cosim.assets import Asset, Plant
+from cosim.errors import ValidationError
+from cosim.kinds import AssetKind
+from cosim.params import Parameters, Text, number, refuse
+
+MAX_PARTICLES_PER_LOAD = 100_000
+"""Most pseudo-particles in one truckload (payload_kg / particle_mass_kg; paper: ~150)."""
 
 
 @dataclass
@@ -54,8 +61,9 @@ class HaulTruck(Asset):
         The shared plant.
     route : list of Source
         Sources visited in turn (the paper: left, right).
-    crusher : Asset
-        Where the loads are dumped (``crusher.receive(ids, t)``).
+    dump_point : (3,) array_like
+        Where the loads are dumped [m]: the inlet its outlet ``dump`` flows to
+        (the crusher's hopper).
     payload : float
         Load per trip [kg] (paper: about 15 t).
     speed : float
@@ -67,16 +75,19 @@ class HaulTruck(Asset):
         at its first source.
     """
 
-    def __init__(self, name: str, plant: Plant, *, route, crusher, payload: float = 15000.0,
+    inlets = ()
+    outlets = ("dump",)
+    output_names = ("x", "y", "payload_kg", "loads")
+
+    def __init__(self, name: str, plant: Plant, *, route, dump_point, payload: float = 15000.0,
                  speed: float = 8.0, load_time: float = 6.0, dump_time: float = 2.75,
                  start: float = 0.0):
         first = route[0].location
         super().__init__(name, plant, location=first)
         self.route = list(route)
-        self.crusher = crusher
         self.payload = float(payload)
         self.speed = float(speed)
-        dump_point = np.asarray(crusher.location, dtype=float)
+        dump_point = np.asarray(dump_point, dtype=float)
         self._stages: list[_Stage] = []
         previous = dump_point
         for source in self.route:
@@ -133,7 +144,7 @@ class HaulTruck(Asset):
             slots = self.particles.slots(self._held)
             self.plant.record("dump", self.name, t, slots, stage.end)
             ids, self._held = self._held, np.empty(0, dtype=np.uint64)
-            self.crusher.receive(ids, t)
+            self.send("dump", ids, t)
             self.dumps += 1
 
     def outputs(self) -> dict[str, float]:
@@ -141,3 +152,91 @@ class HaulTruck(Asset):
                 "payload_kg": float(self.particles.mass[self.particles.slots(self._held)].sum())
                 if self._held.size else 0.0,
                 "loads": float(self.loads)}
+
+
+# ------------------------------------------------------------------ scenario kind
+class TruckParameters(Parameters):
+    """One truck of a fleet: see ``HaulTruck``."""
+
+    name: Text | None = None
+    """Component and event name (default ``<fleet>_<k>``, 1-based)."""
+    route: list[Text]
+    """Source assets visited in turn (declared before the fleet)."""
+    payload_kg: number(0.0, 1e6, low_open=True, unit="kg") = 15000.0
+    speed_m_s: number(0.0, 50.0, low_open=True, unit="m/s") = 8.0
+    load_time_s: number(0.0, 3600.0, low_open=True, unit="s") = 6.0
+    dump_time_s: number(0.0, 3600.0, low_open=True, unit="s") = 2.75
+    start_s: number(0.0, 1e7, unit="s") = 0.0
+
+    @model_validator(mode="after")
+    def _route_given(self):
+        if not self.route:
+            raise refuse("route", "a non-empty list of source names", "got []")
+        return self
+
+
+class TruckFleetParameters(Parameters):
+    """``[assets.NAME] kind = "truck_fleet"``: its trucks (``[[assets.NAME.trucks]]``)."""
+
+    trucks: list[TruckParameters]
+
+    @model_validator(mode="after")
+    def _named(self):
+        if not self.trucks:
+            raise refuse("trucks", "a non-empty array of [[trucks]] tables", "got []")
+        return self
+
+
+class TruckFleetKind(AssetKind):
+    """Haul trucks (``HaulTruck``), each on its route; outlet ``dump`` (the loads), which
+    must flow to one inlet: the trucks drive to where that inlet is."""
+
+    Parameters = TruckFleetParameters
+    component = HaulTruck
+
+    @staticmethod
+    def names(name: str, parameters) -> list[str]:
+        return [truck.name or f"{name}_{k + 1}" for k, truck in enumerate(parameters.trucks)]
+
+    def check(self, name, parameters, plant):
+        errors = []
+        names = self.names(name, parameters)
+        if len(set(names)) != len(names):
+            errors.append(ValidationError(f"assets.{name}.trucks.name", "unique",
+                                          f"got {names}"))
+        declared = list(plant.assets)
+        before = declared[:declared.index(name)]
+        sources = [n for n in before if plant.assets[n][0].loadable]
+        for k, truck in enumerate(parameters.trucks):
+            path = f"assets.{name}.trucks[{k}]"
+            if any(r not in sources for r in truck.route):
+                errors.append(ValidationError(
+                    f"{path}.route", f"a non-empty list of source names among {sources} "
+                    "(sources declared before the fleet)", f"got {truck.route!r}"))
+                continue
+            lightest = truck.payload_kg / MAX_PARTICLES_PER_LOAD
+            for source in truck.route:
+                mass = plant.assets[source][1].particle_mass_kg
+                if mass < lightest:
+                    errors.append(ValidationError(
+                        f"assets.{source}.particle_mass_kg",
+                        f">= {lightest:g} kg ({path}.payload_kg / "
+                        f"{MAX_PARTICLES_PER_LOAD:,} particles per load)", f"got {mass!r}"))
+        if len(plant.feeds(name, "dump")) != 1:
+            errors.append(ValidationError("flows", f"one flow from {name}.dump (where the "
+                                          "trucks dump)",
+                                          f"got {len(plant.feeds(name, 'dump'))}"))
+        return errors
+
+    def build(self, name, p, context):
+        dump_point = context.inlet_location(name, "dump")
+        trucks = []
+        for truck_name, t in zip(self.names(name, p), p.trucks):
+            truck = HaulTruck(truck_name, context.plant,
+                              route=[context.built[r][0] for r in t.route],
+                              dump_point=dump_point, payload=t.payload_kg, speed=t.speed_m_s,
+                              load_time=t.load_time_s, dump_time=t.dump_time_s,
+                              start=t.start_s)
+            context.add(truck)
+            trucks.append(truck)
+        return trucks

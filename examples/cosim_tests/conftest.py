@@ -31,7 +31,7 @@ def crusher_fmu(request):
 def plant_run(tmp_path_factory, crusher_fmu):
     """One 700 s run of the plant shared by the tests of a module (the same call as the
     plugin's function-scoped ``run_scenario`` fixture, kept for the whole module)."""
-    run = run_scenario(SCENARIO, until=700.0, overrides={"crusher.fmu": crusher_fmu},
+    run = run_scenario(SCENARIO, until=700.0, overrides={"assets.crusher.fmu": crusher_fmu},
                        out=tmp_path_factory.mktemp("plant"))
     yield run
     run.close()

@@ -43,7 +43,7 @@ def _common(parser) -> None:
     parser.add_argument("--seed", type=int, default=None, help="random seed (default: scenario's)")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         metavar="KEY=VALUE",
-                        help="override a scenario value, e.g. --set crusher.fmu=other.fmu "
+                        help="override a scenario value, e.g. --set assets.crusher.fmu=other.fmu "
                              "(VALUE is read as TOML, else as a string); repeatable")
     parser.add_argument("--run-dir", type=Path, default=None,
                         help="keep the run's outputs here (default: a temporary folder)")

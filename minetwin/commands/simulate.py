@@ -26,7 +26,7 @@ def register(subparsers) -> None:
     parser.add_argument("--model-option", action="append", default=[], metavar="KEY=VALUE",
                         help="keyword option of the stockpile's storage model, repeatable "
                              "(e.g. --storage-model rom --model-option model=out/rom/model.npz);"
-                             " replaces the scenario's stockpile.options")
+                             " replaces the options of every stockpile in the scenario")
     parser.add_argument("--rest-port", type=int, default=None, metavar="PORT",
                         help="serve the stockpile's REST API on 127.0.0.1:PORT while running "
                              "(0: a free port, printed), for `minetwin monitor`")
@@ -55,7 +55,10 @@ def run(args) -> int:
     config = load(args.scenario)
     if args.model_option:
         options = parse_model_options(args.model_option, field="--model-option")
-        config["stockpile"]["options"] = options
+        from cosim.scenario import assets_of_kind
+
+        for pile in assets_of_kind(config, "stockpile"):
+            config["assets"][pile]["options"] = options
     try:
         _, summary = run_scenario(config, args.out, until=args.until, seed=args.seed,
                                   storage_model=args.storage_model, progress=not args.quiet,

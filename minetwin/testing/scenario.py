@@ -1,8 +1,8 @@
 """Run a mine-simulator scenario for a test: overrides, seed, results in one object.
 
 Wraps ``cosim.scenario`` (load, validate, build, run, write): the scenario
-TOML is read, dotted ``overrides`` are applied (``{"crusher.fmu":
-"cone_crusher", "stockpile.model": "mixing"}``), the result is validated by
+TOML is read, dotted ``overrides`` are applied (``{"assets.crusher.fmu":
+"cone_crusher", "assets.stockpile.model": "mixing"}``), the result is validated by
 the simulator's own rules (so a typo in an override is an error naming the
 key) and run into ``out``, which then holds ``timeseries.parquet``,
 ``events.sqlite`` and ``summary.json`` as ``minetwin simulate`` writes them.
@@ -83,7 +83,7 @@ class ScenarioRun:
 
 
 def apply_overrides(document: dict, overrides: dict | None) -> dict:
-    """A copy of ``document`` with dotted keys set (``"stockpile.model": "mixing"``).
+    """A copy of ``document`` with dotted keys set (``"assets.stockpile.model": "mixing"``).
 
     Every table on the way must exist; the last key may be new (optional
     keys); the simulator's validation then refuses unknown ones.
