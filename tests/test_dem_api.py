@@ -182,15 +182,15 @@ def test_neighbour_lists_grow_past_their_first_capacity():
     walls = np.array([[x + 0.4 * np.cos(a), 0.4 * np.sin(a), x + 0.45 * np.cos(a),
                        0.45 * np.sin(a)] for x in (0.0, 5.0) for a in angles])
     empty = np.zeros(1, np.int64)
-    start, wall, ht, hr = kernels.build_wall_list(pos, radius, 0.05, walls, empty,
-                                                  np.zeros(0, np.int64), np.zeros(0),
-                                                  np.zeros(0), np.full(2, -1))
+    start, wall, ht, hr, hn = kernels.build_wall_list(pos, radius, 0.05, walls, empty,
+                                                      np.zeros(0, np.int64), np.zeros(0),
+                                                      np.zeros(0), np.zeros(0), np.full(2, -1))
     assert start.tolist() == [0, 30, 60]
     assert sorted(wall[:30]) == list(range(30)) and sorted(wall[30:]) == list(range(30, 60))
     # 40 disks piled into one spot: 780 pairs > 8 * 40 + 16
     pos = np.random.default_rng(0).uniform(0, 0.1, (40, 2))
-    start, nbr, ht, hr = kernels.build_pair_list(pos, np.full(40, 0.5), 0.05, empty,
-                                                 np.zeros(0, np.int64), np.zeros(0),
-                                                 np.zeros(0), np.full(40, -1))
+    start, nbr, ht, hr, hn = kernels.build_pair_list(pos, np.full(40, 0.5), 0.05, empty,
+                                                     np.zeros(0, np.int64), np.zeros(0),
+                                                     np.zeros(0), np.zeros(0), np.full(40, -1))
     assert start[-1] == 40 * 39 // 2
     assert all(list(nbr[start[i]:start[i + 1]]) == list(range(i + 1, 40)) for i in range(40))

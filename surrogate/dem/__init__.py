@@ -26,6 +26,6 @@ Snapshot files for ROM training: ``surrogate.dem.snapshots``.
 """
 
 from surrogate.dem.config import DemConfig
-from surrogate.dem.simulation import Dem
+from surrogate.dem.simulation import Dem, DemBlowUp, FeederCapped
 
-__all__ = ["Dem", "DemConfig"]
+__all__ = ["Dem", "DemBlowUp", "DemConfig", "FeederCapped"]

@@ -129,8 +129,10 @@ def _doubled(values, used):
 
 
 @njit(cache=True)
-def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_to_old):
-    """Half Verlet list (CSR, neighbours sorted) with contact history carried over.
+def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, old_hn, new_to_old):
+    """Half Verlet list (CSR, neighbours sorted) with contact history carried
+    over (``ht``, ``hr``, ``hn``: three values per pair; the explicit DEM uses
+    the first two, the nonsmooth one all three).
 
     ``new_to_old[i]`` is the row disk i had when the old list was built
     (-1 for a new disk); the mapping must be increasing where defined, so
@@ -140,7 +142,7 @@ def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_t
     start = np.zeros(n + 1, dtype=np.int64)
     nbr = np.empty(8 * n + 16, dtype=np.int64)
     if n == 0:
-        return start, nbr[:0], np.zeros(0), np.zeros(0)
+        return start, nbr[:0], np.zeros(0), np.zeros(0), np.zeros(0)
     rmax = radius.max()
     xmin, ymin, cs, nx, ny, cstart, members = _cell_grid(pos, 2.0 * rmax + skin)
     k = 0
@@ -172,6 +174,7 @@ def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_t
     nbr = nbr[:k].copy()
     ht = np.zeros(k)
     hr = np.zeros(k)
+    hn = np.zeros(k)
     for i in range(n):
         io = new_to_old[i]
         if io < 0 or io + 1 >= old_start.shape[0]:
@@ -187,7 +190,8 @@ def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_t
             if q < q_end and old_nbr[q] == jo:
                 ht[p] = old_ht[q]
                 hr[p] = old_hr[q]
-    return start, nbr, ht, hr
+                hn[p] = old_hn[q]
+    return start, nbr, ht, hr, hn
 
 
 @njit(inline="always", **HOT)
@@ -200,7 +204,8 @@ def _closest_on_segment(px, py, ax, ay, bx, by):
 
 
 @njit(cache=True)
-def build_wall_list(pos, radius, skin, walls, old_start, old_wall, old_ht, old_hr, new_to_old):
+def build_wall_list(pos, radius, skin, walls, old_start, old_wall, old_ht, old_hr, old_hn,
+                    new_to_old):
     """Disk-segment candidate list (CSR) within ``r_i + skin``, history carried over."""
     n = pos.shape[0]
     nw = walls.shape[0]
@@ -223,6 +228,7 @@ def build_wall_list(pos, radius, skin, walls, old_start, old_wall, old_ht, old_h
     wall = wall[:k].copy()
     ht = np.zeros(k)
     hr = np.zeros(k)
+    hn = np.zeros(k)
     for i in range(n):
         io = new_to_old[i]
         if io < 0 or io + 1 >= old_start.shape[0]:
@@ -232,7 +238,8 @@ def build_wall_list(pos, radius, skin, walls, old_start, old_wall, old_ht, old_h
                 if old_wall[q] == wall[p]:
                     ht[p] = old_ht[q]
                     hr[p] = old_hr[q]
-    return start, wall, ht, hr
+                    hn[p] = old_hn[q]
+    return start, wall, ht, hr, hn
 
 
 @njit(inline="always", **HOT)
@@ -354,7 +361,7 @@ def compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torqu
 def run_steps(n_steps, dt, time, pos, vel, omega, force, torque, radius, body_mass, inv_mass,
               inv_inertia, start, nbr, ht, hr, wall_start, wall, wall_ht, wall_hr, walls, params,
               ref_pos, half_skin, candidates, outlet_lo, outlet_hi, zone_top, rates, credits,
-              credit_cap, tracked_mass, removed):
+              credit_cap, tracked_mass, removed, speed_limit, box):
     """Advance up to ``n_steps`` steps of ``dt`` [s] from ``time`` [s].
 
     Stops early after a step in which a disk moved more than ``half_skin``
@@ -367,11 +374,17 @@ def run_steps(n_steps, dt, time, pos, vel, omega, force, torque, radius, body_ma
     credit is capped at ``credit_cap`` [kg] so an empty feeder does not
     store up a burst.
 
-    Returns ``(steps_done, time, n_removed, rebuild_needed)``.
+    Blow-up guard: also stops after a step that left a disk faster than
+    ``speed_limit`` [m/s] (or with a non-finite velocity) or outside the
+    container ``box = (x_min, x_max, y_min)`` [m]; its row is returned.
+
+    Returns ``(steps_done, time, n_removed, rebuild_needed, bad_row, bad_kind)``
+    with ``bad_kind`` one of ``GUARD_NONE``, ``GUARD_SPEED``, ``GUARD_OUTSIDE``.
     """
     n = pos.shape[0]
     g = params[P_G]
     limit2 = half_skin * half_skin
+    speed2 = speed_limit * speed_limit
     n_removed = 0
     for step in range(n_steps):
         compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht, hr,
@@ -388,33 +401,64 @@ def run_steps(n_steps, dt, time, pos, vel, omega, force, torque, radius, body_ma
             if dx * dx + dy * dy > limit2:
                 moved = True
         time += dt
-        for o in range(rates.shape[0]):
-            if rates[o] <= 0.0:
-                continue
-            credits[o] += rates[o] * dt
-            while True:
-                best = -1
-                for c in range(candidates.shape[0]):
-                    i = candidates[c]
-                    if i < 0:
-                        continue
-                    if outlet_lo[o] <= pos[i, 0] <= outlet_hi[o] and pos[i, 1] <= zone_top:
-                        if best < 0 or pos[i, 1] < pos[best, 1]:
-                            best = i
-                if best < 0:
-                    credits[o] = min(credits[o], credit_cap)
-                    break
-                if credits[o] < tracked_mass[best] or n_removed == removed.shape[0]:
-                    break
-                credits[o] -= tracked_mass[best]
-                removed[n_removed] = best
-                n_removed += 1
-                for c in range(candidates.shape[0]):
-                    if candidates[c] == best:
-                        candidates[c] = -1
+        bad_row, bad_kind = guard_scan(pos, vel, speed2, box)
+        if bad_kind != GUARD_NONE:
+            return step + 1, time, n_removed, moved, bad_row, bad_kind
+        n_removed = feed(dt, pos, candidates, outlet_lo, outlet_hi, zone_top, rates, credits,
+                         credit_cap, tracked_mass, removed, n_removed)
         if n_removed > 0 or moved:
-            return step + 1, time, n_removed, moved
-    return n_steps, time, n_removed, False
+            return step + 1, time, n_removed, moved, -1, GUARD_NONE
+    return n_steps, time, n_removed, False, -1, GUARD_NONE
+
+
+@njit(**HOT)
+def feed(dt, pos, candidates, outlet_lo, outlet_hi, zone_top, rates, credits, credit_cap,
+         tracked_mass, removed, n_removed):
+    """One step of the feeders (rule in ``run_steps``); returns the rows removed so far."""
+    for o in range(rates.shape[0]):
+        if rates[o] <= 0.0:
+            continue
+        credits[o] += rates[o] * dt
+        while True:
+            best = -1
+            for c in range(candidates.shape[0]):
+                i = candidates[c]
+                if i < 0:
+                    continue
+                if outlet_lo[o] <= pos[i, 0] <= outlet_hi[o] and pos[i, 1] <= zone_top:
+                    if best < 0 or pos[i, 1] < pos[best, 1]:
+                        best = i
+            if best < 0:
+                credits[o] = min(credits[o], credit_cap)
+                break
+            if credits[o] < tracked_mass[best] or n_removed == removed.shape[0]:
+                break
+            credits[o] -= tracked_mass[best]
+            removed[n_removed] = best
+            n_removed += 1
+            for c in range(candidates.shape[0]):
+                if candidates[c] == best:
+                    candidates[c] = -1
+    return n_removed
+
+
+GUARD_NONE, GUARD_SPEED, GUARD_OUTSIDE = 0, 1, 2
+"""Codes of what the per-step blow-up guard saw (``run_steps``)."""
+
+
+@njit(cache=True, error_model="numpy")  # no fastmath: it may assume NaN away
+def guard_scan(pos, vel, speed2, box):
+    """First row faster than ``sqrt(speed2)`` [m/s] (or non-finite) or outside
+    ``box = (x_min, x_max, y_min)`` [m], and what it was (``GUARD_*``)."""
+    for i in range(pos.shape[0]):
+        s2 = vel[i, 0] * vel[i, 0] + vel[i, 1] * vel[i, 1]
+        # written so that NaN fails the test
+        if not s2 <= speed2:
+            return i, GUARD_SPEED
+        x = pos[i, 0]
+        if not (box[0] <= x <= box[1] and pos[i, 1] >= box[2]):
+            return i, GUARD_OUTSIDE
+    return -1, GUARD_NONE
 
 
 @njit(cache=True)
