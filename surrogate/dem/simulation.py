@@ -14,6 +14,7 @@ import json
 import math
 import warnings
 
+import numba
 import numpy as np
 
 from cosim.errors import ValidationError, check_finite_range
@@ -153,6 +154,7 @@ class Dem:
         self.ref_pos = np.zeros((0, 2))
         self.candidates = np.zeros(0, np.int64)
         self._new_to_old = np.zeros(0, np.int64)
+        self._pairs = None
 
     @property
     def n(self) -> int:
@@ -367,6 +369,7 @@ class Dem:
         self.candidates = kernels.zone_candidates(self.pos, self._zone_lo, self._zone_hi,
                                                   self._zone_top, skin)
         self.ref_pos = self.pos.copy()
+        self._pairs = None
         self._new_to_old = np.arange(self.n, dtype=np.int64)
         self._dirty = False
         self.list_builds += 1
@@ -378,6 +381,15 @@ class Dem:
             raise ValidationError("n_steps", ">= 0", f"got {n_steps!r}")
         if self.failure is not None:
             raise self.failure
+        threads = numba.get_num_threads()
+        if self.n < kernels.PARALLEL_MIN_DISKS:
+            numba.set_num_threads(1)
+        try:
+            self._step(remaining)
+        finally:
+            numba.set_num_threads(threads)
+
+    def _step(self, remaining: int) -> None:
         removed = np.empty(64, np.int64)
         guard_steps = max(1, int(round(GUARD_INTERVAL / self.dt)))
         while remaining > 0:
@@ -401,6 +413,7 @@ class Dem:
                     removed, self.speed_limit, self._box, self.solver_stats)
             else:
                 force, torque = self._buffers()
+                pair_force, pair_torque, rev_start, rev_pair = self._pair_buffers()
                 done, self.time, n_removed, moved, bad_row, bad_kind = kernels.run_steps(
                     chunk, self.dt, self.time, self.pos, self.vel, self.omega,
                     force, torque, self.radius, self.body_mass,
@@ -408,7 +421,8 @@ class Dem:
                     self.wall_start, self.wall, self.wall_ht, self.wall_hr, self.walls,
                     self.params, self.ref_pos, 0.5 * self._skin, self.candidates, self._zone_lo,
                     self._zone_hi, self._zone_top, self.rates, self.credits, self.credit_cap,
-                    self.mass, removed, self.speed_limit, self._box)
+                    self.mass, removed, self.speed_limit, self._box, pair_force, pair_torque,
+                    rev_start, rev_pair)
             remaining -= done
             self.steps_done += done
             self._steps_since_check += done
@@ -488,6 +502,14 @@ class Dem:
         if not math.isfinite(seconds) or seconds < 0:
             raise ValidationError("seconds", "finite and >= 0 s", f"got {seconds!r}")
         self.step(int(math.ceil(seconds / self.dt - 1e-9)))
+
+    def _pair_buffers(self):
+        """Per-pair scratch arrays and the partner side of the pair list
+        (``kernels.compute_forces``), made again after each list build."""
+        if self._pairs is None:
+            self._pairs = (np.zeros((self.nbr.size, 2)), np.zeros(self.nbr.size),
+                           *kernels.reverse_pairs(self.start, self.nbr))
+        return self._pairs
 
     def _buffers(self):
         """Force (N, 2) and torque (N,) scratch arrays sized to the disks held."""
