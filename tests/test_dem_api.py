@@ -222,3 +222,20 @@ def test_explicit_dem_gives_the_same_bits_on_one_and_two_threads(monkeypatch):
     assert runs[0][-1].size > 0
     for one, two, serial in zip(*runs):
         assert np.array_equal(one, two) and np.array_equal(one, serial)
+
+
+def test_dem_command_reports_a_blow_up_without_a_traceback(tmp_path, capsys):
+    dem = Dem(config_for_particles(60))
+    r = 0.2
+    # two disks placed 90 % into each other: the guard stops the first step
+    dem.place(np.array([[0.0, 1.0], [0.1 * r, 1.0]]), dem.cfg.sphere_mass(2 * r), 0.5, 1.0,
+              F16, 1)
+    source = tmp_path / "bad"
+    source.mkdir()
+    dem.save_checkpoint(source / "checkpoint.npz")
+    code = main(["dem", "discharge", "--from", str(source), "--rate", "100",
+                 "--duration", "1", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert "minetwin dem discharge: error: DEM blew up at t = " in err
+    assert "Traceback" not in err
