@@ -3,7 +3,7 @@
 Scene: a dense 2D pile of ``--particles`` disks (20,000: the paper's scale)
 laid out with ``packed_pile`` and settled for ``--settle`` simulated seconds
 (cached in ``--cache``). From that state the same ``--steps`` steps run
-alternately at 1 and 2 numba threads (``numba.set_num_threads``),
+alternately at 1 and 2 threads (``Dem.threads``),
 ``--pairs`` times; each run starts from the same checkpoint, and the
 benchmark checks that both thread counts end on the same bits. Prints one
 JSON object: wall seconds of each run, particle-steps per wall second, and
@@ -42,8 +42,8 @@ def settled(n: int, settle_time: float, cache: Path) -> Path:
 
 
 def timed(path: Path, threads: int, steps: int):
-    numba.set_num_threads(threads)
     dem = Dem.load_checkpoint(path)
+    dem.threads = threads
     dem.step(2)  # loads the compiled kernels outside the timing
     tic = time.perf_counter()
     dem.step(steps)

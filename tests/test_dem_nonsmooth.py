@@ -137,3 +137,17 @@ def test_checkpoint_restart_continues_bit_for_bit(tmp_path):
     assert a["id"].size > 0
     for key in a:
         assert np.array_equal(a[key], b[key]), key
+
+
+def test_an_explicit_checkpoint_continues_under_the_nonsmooth_method(tmp_path):
+    dem = Dem(config_for_particles(60), seed=1)
+    dem.emit(3000.0, 0.5, 1.0, F16, 0)
+    dem.advance(1.0)
+    path = tmp_path / "explicit.npz"
+    dem.save_checkpoint(path)
+    again = Dem.load_checkpoint(path, method="nonsmooth")
+    assert again.nonsmooth and again.dt == 0.011 and not again.ht.any()
+    assert np.array_equal(again.id, dem.id) and np.array_equal(again.pos, dem.pos)
+    again.advance(1.0)
+    assert again.held_mass() == pytest.approx(dem.held_mass(), rel=1e-14)
+    assert Dem.load_checkpoint(path).cfg.method == "explicit"

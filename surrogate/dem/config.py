@@ -166,6 +166,14 @@ class DemConfig:
     dt_safety_factor : float
         stable_dt = t_c / dt_safety_factor [-] (15, >= 5): 0.067 t_c, 3.3x
         under the 0.22 t_c measured stable on a dense pile (module docstring).
+    threads : int
+        Threads of the explicit DEM's force kernel and integration [-] (1;
+        0: all of numba's, ``NUMBA_NUM_THREADS``). Any count gives the same
+        bits; scenes under ``kernels.PARALLEL_MIN_DISKS`` disks always run on
+        one. One by default because a thread that the system deschedules
+        stalls every step: on this project's shared 2-core machine at a load
+        average of ~9, 2 threads ran a 20,000-disk pile at 0.14x the speed
+        of one (``benchmarks/bench_dem_threads.py``, README "Threads").
 
     Method
     ------
@@ -227,6 +235,7 @@ class DemConfig:
     diameter_max: float = 0.48
     skin: float = 0.05
     dt_safety_factor: float = 15.0
+    threads: int = 1
     method: str = "explicit"
     nonsmooth_dt: float = 0.011
     solver_iterations: int = 100
@@ -288,6 +297,12 @@ class DemConfig:
             raise ValidationError("solver_iterations", "an integer in [1, 100000]",
                                   f"got {iterations!r}")
         self.solver_iterations = int(iterations)
+        threads = self.threads
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) \
+                or not 0 <= threads <= 4096:
+            raise ValidationError("threads", "an integer in [0, 4096] (0: all)",
+                                  f"got {threads!r}")
+        self.threads = int(threads)
         for name in ("solver_tolerance", "stabilization_steps"):
             value = float(getattr(self, name))
             if not (math.isfinite(value) and 0.0 <= value <= 1e3):

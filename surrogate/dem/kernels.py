@@ -272,19 +272,10 @@ def _contact(kn, kt, cn, ct, mu, mur, kr_coef, coh, delta, vn, vt, wrel, m_eff, 
 
 
 @njit(parallel=True, **HOT)
-def compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht, hr,
-                   wall_start, wall, wall_ht, wall_hr, walls, params, dt, pair_force, pair_torque,
-                   rev_start, rev_pair):
-    """Contact forces [N] and torques [N m] of all disks; updates contact history.
-
-    Runs on all threads (``prange``) and gives the same bits for any thread
-    count: each disk's sums are gathered in a fixed order. Pass 1 (disk i
-    owns the pairs ``start[i]:start[i+1]`` and its wall contacts): each pair's
-    force on i and torque on j are stored per pair (``pair_force`` (P, 2),
-    ``pair_torque`` (P,)) and i sums its own share in list order. Pass 2:
-    disk j adds the opposite of the forces of the pairs it is the partner of,
-    in increasing pair order (``rev_start``, ``rev_pair``: ``reverse_pairs``).
-    """
+def pair_pass(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht, hr,
+              wall_start, wall, wall_ht, wall_hr, walls, params, dt, pair_force, pair_torque):
+    """Pass 1 of ``compute_forces``: pair forces stored per pair, each disk's
+    own share (its pairs in list order, then its walls) summed into its row."""
     n = pos.shape[0]
     kn = params[P_KN]
     kt = params[P_KT]
@@ -364,18 +355,71 @@ def compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torqu
         force[i, 0] = fxi
         force[i, 1] = fyi
         torque[i] = ti
-    for j in prange(n):
-        fxj = 0.0
-        fyj = 0.0
-        tj = 0.0
-        for q in range(rev_start[j], rev_start[j + 1]):
-            p = rev_pair[q]
-            fxj -= pair_force[p, 0]
-            fyj -= pair_force[p, 1]
-            tj += pair_torque[p]
+
+
+@njit(parallel=True, **HOT)
+def compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht, hr,
+                   wall_start, wall, wall_ht, wall_hr, walls, params, dt, pair_force, pair_torque,
+                   rev_start, rev_pair):
+    """Contact forces [N] and torques [N m] of all disks; updates contact history.
+
+    Runs on all threads (``prange``) and gives the same bits for any thread
+    count: each disk's sums are gathered in a fixed order. Pass 1
+    (``pair_pass``: disk i owns the pairs ``start[i]:start[i+1]`` and its
+    wall contacts): each pair's force on i and torque on j are stored per
+    pair (``pair_force`` (P, 2), ``pair_torque`` (P,)) and i sums its own
+    share in list order. Pass 2: disk j adds the opposite of the forces of
+    the pairs it is the partner of, in increasing pair order (``rev_start``,
+    ``rev_pair``: ``reverse_pairs``). ``run_steps`` fuses pass 2 with the
+    integration (``gather_and_integrate``): one join fewer per step.
+    """
+    pair_pass(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht, hr,
+              wall_start, wall, wall_ht, wall_hr, walls, params, dt, pair_force, pair_torque)
+    for j in prange(pos.shape[0]):
+        fxj, fyj, tj = _gathered(j, pair_force, pair_torque, rev_start, rev_pair)
         force[j, 0] += fxj
         force[j, 1] += fyj
         torque[j] += tj
+
+
+@njit(inline="always", **HOT)
+def _gathered(j, pair_force, pair_torque, rev_start, rev_pair):
+    fxj = 0.0
+    fyj = 0.0
+    tj = 0.0
+    for q in range(rev_start[j], rev_start[j + 1]):
+        p = rev_pair[q]
+        fxj -= pair_force[p, 0]
+        fyj -= pair_force[p, 1]
+        tj += pair_torque[p]
+    return fxj, fyj, tj
+
+
+@njit(parallel=True, **HOT)
+def gather_and_integrate(dt, g, pos, vel, omega, force, torque, inv_mass, inv_inertia, ref_pos,
+                         limit2, pair_force, pair_torque, rev_start, rev_pair):
+    """Pass 2 of ``compute_forces`` and the symplectic Euler step of each disk
+    in one loop on all threads; returns how many disks moved more than
+    ``sqrt(limit2)`` [m] since the list build (an integer sum: any thread count)."""
+    moved = 0
+    for i in prange(pos.shape[0]):
+        fxj, fyj, tj = _gathered(i, pair_force, pair_torque, rev_start, rev_pair)
+        fx = force[i, 0] + fxj
+        fy = force[i, 1] + fyj
+        t = torque[i] + tj
+        force[i, 0] = fx
+        force[i, 1] = fy
+        torque[i] = t
+        vel[i, 0] += fx * inv_mass[i] * dt
+        vel[i, 1] += (fy * inv_mass[i] - g) * dt
+        omega[i] += t * inv_inertia[i] * dt
+        pos[i, 0] += vel[i, 0] * dt
+        pos[i, 1] += vel[i, 1] * dt
+        dx = pos[i, 0] - ref_pos[i, 0]
+        dy = pos[i, 1] - ref_pos[i, 1]
+        if dx * dx + dy * dy > limit2:
+            moved += 1
+    return moved
 
 
 @njit(cache=True)
@@ -429,11 +473,12 @@ def run_steps(n_steps, dt, time, pos, vel, omega, force, torque, radius, body_ma
     speed2 = speed_limit * speed_limit
     n_removed = 0
     for step in range(n_steps):
-        compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr,
-                       ht, hr, wall_start, wall, wall_ht, wall_hr, walls, params, dt, pair_force,
-                       pair_torque, rev_start, rev_pair)
-        moved = integrate(dt, g, pos, vel, omega, force, torque, inv_mass, inv_inertia, ref_pos,
-                          limit2) > 0
+        pair_pass(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht,
+                  hr, wall_start, wall, wall_ht, wall_hr, walls, params, dt, pair_force,
+                  pair_torque)
+        moved = gather_and_integrate(dt, g, pos, vel, omega, force, torque, inv_mass,
+                                     inv_inertia, ref_pos, limit2, pair_force, pair_torque,
+                                     rev_start, rev_pair) > 0
         time += dt
         bad_row, bad_kind = guard_scan(pos, vel, speed2, box)
         if bad_kind != GUARD_NONE:
@@ -443,24 +488,6 @@ def run_steps(n_steps, dt, time, pos, vel, omega, force, torque, radius, body_ma
         if n_removed > 0 or moved:
             return step + 1, time, n_removed, moved, -1, GUARD_NONE
     return n_steps, time, n_removed, False, -1, GUARD_NONE
-
-
-@njit(parallel=True, **HOT)
-def integrate(dt, g, pos, vel, omega, force, torque, inv_mass, inv_inertia, ref_pos, limit2):
-    """Symplectic Euler on all threads; returns how many disks moved more than
-    ``sqrt(limit2)`` [m] since the list build (an integer sum: any thread count)."""
-    moved = 0
-    for i in prange(pos.shape[0]):
-        vel[i, 0] += force[i, 0] * inv_mass[i] * dt
-        vel[i, 1] += (force[i, 1] * inv_mass[i] - g) * dt
-        omega[i] += torque[i] * inv_inertia[i] * dt
-        pos[i, 0] += vel[i, 0] * dt
-        pos[i, 1] += vel[i, 1] * dt
-        dx = pos[i, 0] - ref_pos[i, 0]
-        dy = pos[i, 1] - ref_pos[i, 1]
-        if dx * dx + dy * dy > limit2:
-            moved += 1
-    return moved
 
 
 PARALLEL_MIN_DISKS = 4000

@@ -10,6 +10,7 @@ contact law and time-step rule are in ``kernels.py`` / ``config.py`` and in
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import warnings
@@ -97,6 +98,8 @@ class Dem:
         """Nonsmooth solver totals: steps, sweeps, contact rows, last sweep's
         largest velocity change [m/s]."""
         self._skin = self.cfg.skin
+        self.threads = self.cfg.threads
+        """Threads of the explicit kernels (``DemConfig.threads``); may be changed."""
         self.dt = self.cfg.nonsmooth_dt if self.nonsmooth else self.cfg.stable_dt
         if dt is not None:
             self.set_dt(dt, force=force)
@@ -381,13 +384,21 @@ class Dem:
             raise ValidationError("n_steps", ">= 0", f"got {n_steps!r}")
         if self.failure is not None:
             raise self.failure
-        threads = numba.get_num_threads()
-        if self.n < kernels.PARALLEL_MIN_DISKS:
-            numba.set_num_threads(1)
+        before = numba.get_num_threads()
+        numba.set_num_threads(self.kernel_threads())
         try:
             self._step(remaining)
         finally:
-            numba.set_num_threads(threads)
+            numba.set_num_threads(before)
+
+    def kernel_threads(self) -> int:
+        """Threads the explicit kernels run on now: ``threads`` (from
+        ``cfg.threads``; 0: all of numba's), one below
+        ``kernels.PARALLEL_MIN_DISKS`` disks and for the nonsmooth method."""
+        if self.nonsmooth or self.n < kernels.PARALLEL_MIN_DISKS:
+            return 1
+        most = numba.config.NUMBA_NUM_THREADS
+        return most if self.threads == 0 else min(self.threads, most)
 
     def _step(self, remaining: int) -> None:
         removed = np.empty(64, np.int64)
@@ -611,12 +622,21 @@ class Dem:
             np.savez_compressed(handle, meta=np.array(json.dumps(meta)), **arrays)
 
     @classmethod
-    def load_checkpoint(cls, path) -> "Dem":
-        """Rebuild a ``Dem`` from ``save_checkpoint`` output."""
+    def load_checkpoint(cls, path, method: str | None = None) -> "Dem":
+        """Rebuild a ``Dem`` from ``save_checkpoint`` output. With ``method``
+        other than the checkpoint's, the same state continues under that
+        method (``DemConfig.method``) at its default step, with the contact
+        history cleared (springs and impulses mean different things): the
+        way to run both methods from one pile."""
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
-            dem = cls(DemConfig.from_dict(meta["config"]))
-            dem.dt = float(meta["dt"])
+            cfg = DemConfig.from_dict(meta["config"])
+            switch = method is not None and method != cfg.method
+            if switch:
+                cfg = dataclasses.replace(cfg, method=method)
+            dem = cls(cfg)
+            if not switch:
+                dem.dt = float(meta["dt"])
             dem.time = float(meta["time"])
             dem.steps_done = int(meta["steps_done"])
             dem.next_id = int(meta["next_id"])
@@ -630,6 +650,10 @@ class Dem:
             dem._energy_budget = meta.get("energy_budget")
             dem._steps_since_check = int(meta.get("steps_since_check", 0))
             dem._skin = float(meta.get("skin", dem.cfg.skin))
+            if switch:
+                for name in ("ht", "hr", "hn", "wall_ht", "wall_hr", "wall_hn"):
+                    getattr(dem, name)[:] = 0.0
+                dem._dirty = True  # lists sized for the new method's reach
             if "solver_stats" in data.files:
                 dem.solver_stats = data["solver_stats"].copy()
             for name in _PARTICLE_FIELDS + _LIST_FIELDS:
