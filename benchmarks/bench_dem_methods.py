@@ -42,8 +42,12 @@ def overlaps(dem: Dem):
             float(touching.max()) if touching.size else 0.0)
 
 
-def run(path: Path, method: str, factor: float, seconds: float, rate: float) -> dict:
-    dem = Dem.load_checkpoint(path, method=method)
+def run(path: Path, method: str, factor: float, seconds: float, rate: float,
+        stiffness: float | None) -> dict:
+    changes = {"method": method}
+    if stiffness:
+        changes["normal_stiffness"] = stiffness
+    dem = Dem.load_checkpoint(path, changes)
     if method == "explicit":
         dem.set_dt(factor * dem.stable_dt, force=factor > 1)
     dem.set_discharge_rate(rate)
@@ -68,6 +72,9 @@ def main(argv=None) -> int:
     parser.add_argument("--rate", type=float, default=500.0)
     parser.add_argument("--explicit-factor", type=float, default=3.3)
     parser.add_argument("--pairs", type=int, default=1)
+    parser.add_argument("--normal-stiffness", type=float,
+                        help="k_n [N/m] of the timed runs (default: the pile's, 4e7); the pile "
+                             "is settled at the default and continues at this one")
     parser.add_argument("--cache", type=Path, default=Path("/tmp/minetwin_methods_pile.npz"))
     args = parser.parse_args(argv)
     cfg = config_for_particles(args.particles, DemConfig())
@@ -79,7 +86,8 @@ def main(argv=None) -> int:
     for _ in range(args.pairs):
         for method, factor in (("explicit", 1.0), ("explicit", args.explicit_factor),
                                ("nonsmooth", 1.0)):
-            row = run(args.cache, method, factor, args.seconds, args.rate)
+            row = run(args.cache, method, factor, args.seconds, args.rate,
+                      args.normal_stiffness)
             print(jsonio.dumps(row), file=sys.stderr, flush=True)
             rows.append(row)
     cost = {}
@@ -88,7 +96,8 @@ def main(argv=None) -> int:
         cost.setdefault(key, []).append(row["wall_s_per_simulated_s"])
     median = {k: float(np.median(v)) for k, v in cost.items()}
     ns = [v for k, v in median.items() if k.startswith("nonsmooth")][0]
-    print(jsonio.dumps({"particles": args.particles, "rows": rows,
+    print(jsonio.dumps({"particles": args.particles, "normal_stiffness": args.normal_stiffness
+                        or cfg.normal_stiffness, "rows": rows,
                         "median_wall_s_per_simulated_s": median,
                         "ratio_to_nonsmooth": {k: v / ns for k, v in median.items()}},
                        indent=1))

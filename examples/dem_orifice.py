@@ -12,8 +12,8 @@ For each opening and seed it prints the rate and ``C = W / (rho_2D sqrt(g)
 (``areal_bulk_density``, ``mean_diameter``), and the mean and standard
 deviation of C over all runs.
 
-Run: ``.venv/bin/python examples/dem_orifice.py`` (about 8 minutes on one
-core; ``--widths``, ``--seeds`` and ``--duration`` make it shorter or longer).
+Run: ``.venv/bin/python examples/dem_orifice.py`` (about 20 minutes on the
+shared 2-core machine; ``--widths``, ``--seeds`` and ``--duration`` make it shorter or longer).
 """
 
 from __future__ import annotations
@@ -34,10 +34,11 @@ FLOOR_Y = 2.0
 
 def orifice_bin(opening: float, seed: int, width: float = 16.0, fill_height: float = 25.0,
                 method: str = "explicit", **overrides) -> Dem:
-    """A ``Dem`` of the bunker described in the module docstring, at rest."""
+    """A ``Dem`` of the bunker described in the module docstring, at rest
+    (``method`` and ``overrides``: ``DemConfig`` fields)."""
     half = width / 2.0
     cfg = DemConfig(**{**dict(
-        floor_width=width, side_wall_height=FLOOR_Y + fill_height + 1.0,
+        method=method, floor_width=width, side_wall_height=FLOOR_Y + fill_height + 1.0,
         extra_walls=[[-half, FLOOR_Y, -opening / 2, FLOOR_Y],
                      [opening / 2, FLOOR_Y, half, FLOOR_Y]],
         inlets=[[0.0, FLOOR_Y + fill_height + 0.5]], outlets=[0.0],

@@ -145,7 +145,7 @@ def test_an_explicit_checkpoint_continues_under_the_nonsmooth_method(tmp_path):
     dem.advance(1.0)
     path = tmp_path / "explicit.npz"
     dem.save_checkpoint(path)
-    again = Dem.load_checkpoint(path, method="nonsmooth")
+    again = Dem.load_checkpoint(path, {"method": "nonsmooth"})
     assert again.nonsmooth and again.dt == 0.011 and not again.ht.any()
     assert np.array_equal(again.id, dem.id) and np.array_equal(again.pos, dem.pos)
     again.advance(1.0)

@@ -10,7 +10,6 @@ contact law and time-step rule are in ``kernels.py`` / ``config.py`` and in
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import warnings
@@ -622,18 +621,19 @@ class Dem:
             np.savez_compressed(handle, meta=np.array(json.dumps(meta)), **arrays)
 
     @classmethod
-    def load_checkpoint(cls, path, method: str | None = None) -> "Dem":
-        """Rebuild a ``Dem`` from ``save_checkpoint`` output. With ``method``
-        other than the checkpoint's, the same state continues under that
-        method (``DemConfig.method``) at its default step, with the contact
-        history cleared (springs and impulses mean different things): the
-        way to run both methods from one pile."""
+    def load_checkpoint(cls, path, changes: dict | None = None) -> "Dem":
+        """Rebuild a ``Dem`` from ``save_checkpoint`` output. With ``changes``
+        (``DemConfig`` fields, e.g. ``{"method": "nonsmooth"}`` or a
+        stiffness) that alter the configuration, the same state continues
+        under the changed one at its default step, with the contact history
+        cleared (springs and impulses of another law mean nothing here): the
+        way to run both methods, or both stiffnesses, from one pile."""
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
             cfg = DemConfig.from_dict(meta["config"])
-            switch = method is not None and method != cfg.method
-            if switch:
-                cfg = dataclasses.replace(cfg, method=method)
+            changed = DemConfig.from_dict({**cfg.to_dict(), **(changes or {})})
+            switch = changed != cfg
+            cfg = changed
             dem = cls(cfg)
             if not switch:
                 dem.dt = float(meta["dt"])
