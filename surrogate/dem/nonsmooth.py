@@ -20,7 +20,7 @@ wall; n from j to i, t = (-n_y, n_x); gap g = |x_i - x_j| - r_i - r_j):
    along t, rolling impulse ``p_r`` [N m s]; on i ``+p_n n + p_t t``, torque
    ``-r_i p_t + p_r``; on j the opposite force and the torque ``-r_j p_t - p_r``.
 3. Normal complementarity, ``0 <= p_n  perp  u_n+ + b + s p_n >= 0``, with
-   (Servin et al. 2014, sec. 3; the regularised, stabilised constraint of
+   (Servin et al. 2014; the regularised, stabilised constraint of
    Lacoursiere's SPOOK stepper, here in its implicit-Euler form):
 
    * a gap that this step does not close (``g > 0`` and ``g + h u_n* > 0``):
@@ -47,6 +47,12 @@ wall; n from j to i, t = (-n_y, n_x); gap g = |x_i - x_j| - r_i - r_j):
    (kept per list entry in ``hn, ht, hr``) are applied before the first
    sweep, except for impacting contacts.
 6. ``x += h v+``; the feeders and the blow-up guard as in the explicit DEM.
+
+SPOOK: C. Lacoursiere (2007), "Ghosts and machines: regularized variational
+methods for interactive simulations of multibodies with dry frictional
+contacts", PhD thesis, Umea University; the form above is its implicit-Euler
+reading (a stiff spring-dashpot solved at the end of the step), not its
+exact constants.
 
 Cohesion is not modelled here (``DemConfig`` refuses it with this method).
 Deterministic: everything runs in one thread in a fixed order.
