@@ -80,7 +80,7 @@ def time_ours(dem: Dem, steps: int) -> dict:
     ht, hr, wht, whr = dem.ht.copy(), dem.hr.copy(), dem.wall_ht.copy(), dem.wall_hr.copy()
     args = (dem.pos, dem.vel, dem.omega, dem.radius, dem.body_mass, dem.inv_inertia, force,
             torque, dem.start, dem.nbr, ht, hr, dem.wall_start, dem.wall, wht, whr, dem.walls,
-            dem.params, dem.dt)
+            dem.params, dem.dt, *dem._pair_buffers())
     kernels.compute_forces(*args)  # the first call loads the compiled kernel
     force_s = np.inf
     for _ in range(5):  # best of 5 blocks: other jobs on the machine only add time

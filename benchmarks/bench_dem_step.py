@@ -31,6 +31,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from surrogate.dem import Dem  # noqa: E402
+from surrogate.dem.simulation import DemBlowUp  # noqa: E402
 from surrogate.rom import doe, paper_design  # noqa: E402
 
 CHECK_EVERY = 0.05
@@ -52,8 +53,11 @@ def ladder_run(path: Path, fraction: float, seconds: float) -> dict:
         for _ in range(checks_per_second):
             steps = int(np.ceil(CHECK_EVERY / dem.dt - 1e-9))
             particle_steps += steps * dem.n
-            dem.step(steps)
-            reason = doe.instability(dem)
+            try:
+                dem.step(steps)
+                reason = doe.instability(dem)
+            except DemBlowUp as exc:
+                reason = str(exc)
             max_overlap = max(max_overlap, dem.max_overlap_ratio())
             bulk = dem.time - dem.entry_time >= doe.BULK_AGE
             if bulk.any():

@@ -124,6 +124,8 @@ class DemStorage(StorageModel):
     def predict(self, horizon: float, discharge_rate: float):
         """``(ids, mass_kg)`` expected to leave within ``horizon`` [s] (funnel rule)."""
         rate = check_discharge_rate(discharge_rate, self.dem.cfg.max_discharge_rate)
+        # the feeder draws no more than its opening passes (Dem.set_discharge_rate)
+        rate = min(rate, self.dem.cfg.orifice_capacity())
         order = self._funnel_order()
         masses = self.dem.mass[order]
         budget = float(self.dem.credits[self.outlet]) + rate * float(horizon)

@@ -183,15 +183,59 @@ def test_neighbour_lists_grow_past_their_first_capacity():
     walls = np.array([[x + 0.4 * np.cos(a), 0.4 * np.sin(a), x + 0.45 * np.cos(a),
                        0.45 * np.sin(a)] for x in (0.0, 5.0) for a in angles])
     empty = np.zeros(1, np.int64)
-    start, wall, ht, hr = kernels.build_wall_list(pos, radius, 0.05, walls, empty,
-                                                  np.zeros(0, np.int64), np.zeros(0),
-                                                  np.zeros(0), np.full(2, -1))
+    start, wall, ht, hr, hn = kernels.build_wall_list(pos, radius, 0.05, walls, empty,
+                                                      np.zeros(0, np.int64), np.zeros(0),
+                                                      np.zeros(0), np.zeros(0), np.full(2, -1))
     assert start.tolist() == [0, 30, 60]
     assert sorted(wall[:30]) == list(range(30)) and sorted(wall[30:]) == list(range(30, 60))
     # 40 disks piled into one spot: 780 pairs > 8 * 40 + 16
     pos = np.random.default_rng(0).uniform(0, 0.1, (40, 2))
-    start, nbr, ht, hr = kernels.build_pair_list(pos, np.full(40, 0.5), 0.05, empty,
-                                                 np.zeros(0, np.int64), np.zeros(0),
-                                                 np.zeros(0), np.full(40, -1))
+    start, nbr, ht, hr, hn = kernels.build_pair_list(pos, np.full(40, 0.5), 0.05, empty,
+                                                     np.zeros(0, np.int64), np.zeros(0),
+                                                     np.zeros(0), np.zeros(0), np.full(40, -1))
     assert start[-1] == 40 * 39 // 2
     assert all(list(nbr[start[i]:start[i + 1]]) == list(range(i + 1, 40)) for i in range(40))
+
+
+def test_explicit_dem_gives_the_same_bits_on_one_and_two_threads(monkeypatch):
+    """The force kernel and the integration run on all threads (prange) with
+    each disk's sums gathered in a fixed order, so the thread count cannot
+    change a bit: a pile discharging for 0.25 s at 1 and at 2 threads, and at
+    one thread by the rule for scenes below ``PARALLEL_MIN_DISKS``."""
+    import numba
+
+    from surrogate.dem import kernels
+    from surrogate.dem.builders import packed_pile
+
+    runs = []
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs NUMBA_NUM_THREADS >= 2")
+    for threads, smallest in ((1, 0), (2, 0), (2, 10 ** 9)):
+        monkeypatch.setattr(kernels, "PARALLEL_MIN_DISKS", smallest)
+        dem = packed_pile(config_for_particles(300), 300, seed=4)
+        dem.threads = threads
+        assert dem.kernel_threads() == (1 if smallest else threads)
+        dem.set_discharge_rate(800.0)
+        dem.advance(0.25)
+        runs.append((dem.pos, dem.vel, dem.omega, dem.ht, dem.hr, dem.wall_ht,
+                     dem.discharged()["id"]))
+    assert runs[0][-1].size > 0
+    for one, two, serial in zip(*runs):
+        assert np.array_equal(one, two) and np.array_equal(one, serial)
+
+
+def test_dem_command_reports_a_blow_up_without_a_traceback(tmp_path, capsys):
+    dem = Dem(config_for_particles(60))
+    r = 0.2
+    # two disks placed 90 % into each other: the guard stops the first step
+    dem.place(np.array([[0.0, 1.0], [0.1 * r, 1.0]]), dem.cfg.sphere_mass(2 * r), 0.5, 1.0,
+              F16, 1)
+    source = tmp_path / "bad"
+    source.mkdir()
+    dem.save_checkpoint(source / "checkpoint.npz")
+    code = main(["dem", "discharge", "--from", str(source), "--rate", "100",
+                 "--duration", "1", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert "minetwin dem discharge: error: DEM blew up at t = " in err
+    assert "Traceback" not in err

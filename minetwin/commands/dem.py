@@ -39,20 +39,38 @@ def register(subparsers) -> None:
     pile.add_argument("--snapshot-interval", type=float,
                       help="write snapshots to OUT/snapshots every this many seconds")
     pile.add_argument("--seed", type=int, default=0, help="random seed (0)")
-    pile.set_defaults(handler=run_pile)
+    pile.set_defaults(handler=_stopping_on_blow_up(run_pile))
 
     dis = sub.add_parser("discharge", help="discharge a pile through the feeder",
                          description="Continue from a pile's checkpoint with the feeder of "
                                      "outlet 0 at a constant rate.")
     dis.add_argument("--from", dest="source", required=True,
                      help="directory with checkpoint.npz (from `dem pile` or `dem discharge`)")
-    dis.add_argument("--rate", type=float, required=True, help="feeder rate [kg/s] (0..2000)")
+    dis.add_argument("--rate", type=float, required=True,
+                     help="feeder setpoint [kg/s] (0..2000; capped at what the opening passes, "
+                          "Beverloo)")
     dis.add_argument("--duration", type=float, required=True, help="simulated time [s]")
     dis.add_argument("--out", required=True, help="output directory")
     dis.add_argument("--snapshot-interval", type=float,
                      help="write snapshots to OUT/snapshots every this many seconds")
-    dis.set_defaults(handler=run_discharge)
+    dis.set_defaults(handler=_stopping_on_blow_up(run_discharge))
     parser.set_defaults(handler=lambda args: (parser.print_help(sys.stderr), 2)[1])
+
+
+def _stopping_on_blow_up(handler):
+    """``handler`` with a DEM blow-up (``DemBlowUp``: what, when, why) reported
+    on stderr and exit code 1 instead of a traceback."""
+
+    def guarded(args):
+        from surrogate.dem import DemBlowUp
+
+        try:
+            return handler(args)
+        except DemBlowUp as exc:
+            print(f"minetwin dem {args.dem_command}: error: {exc}", file=sys.stderr)
+            return 1
+
+    return guarded
 
 
 def _check_positive(name, value, allow_zero=False):

@@ -5,11 +5,16 @@ Stable public API (used by the ROM, ``surrogate/rom``, and ``DemStorage``)::
     from surrogate.dem import DemConfig, Dem
     cfg = DemConfig(...)                 # dataclass, SI units, defaults documented;
                                          # DemConfig.from_toml(path) / .from_dict(d) / .to_dict()
-    dem = Dem(cfg, seed=0)               # optional dt=..., force=True for dt > stable_dt
+    dem = Dem(cfg, seed=0)               # optional dt=..., force=True for dt > stable_dt;
+                                         # DemConfig(method="nonsmooth"): the time-implicit
+                                         # DEM (nonsmooth.py), default dt 11 ms, no limit
+    # a run that blows up raises DemBlowUp (what was seen, time, step, cause)
     ids = dem.emit(mass_kg, grade, hardness, f16, tracking_id, inlet=0, ids=None)
         # ids=None: mass_kg is one lot, split into pseudo-particles with new ids;
         # ids given: one disk per id, mass_kg per id. Returns uint64 ids.
-    dem.set_discharge_rate(rate_kg_s, outlet=0)   # 0..cfg.max_discharge_rate (2000) kg/s
+    dem.set_discharge_rate(rate_kg_s, outlet=0)   # 0..cfg.max_discharge_rate (2000) kg/s;
+        # returns the rate drawn: capped at what the opening passes (Beverloo,
+        # cfg.orifice_capacity()), with a FeederCapped warning; dem.feeder_state()
     dem.advance(seconds)   /  dem.step(n_steps)   # feeders remove disks at the outlets
     dem.discharged()       # dict of arrays since the last call: id, tracking_id, mass,
                            # grade, hardness, f (M,16), entry_time, time (removal), outlet
@@ -26,6 +31,6 @@ Snapshot files for ROM training: ``surrogate.dem.snapshots``.
 """
 
 from surrogate.dem.config import DemConfig
-from surrogate.dem.simulation import Dem
+from surrogate.dem.simulation import Dem, DemBlowUp, FeederCapped
 
-__all__ = ["Dem", "DemConfig"]
+__all__ = ["Dem", "DemBlowUp", "DemConfig", "FeederCapped"]

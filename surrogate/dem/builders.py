@@ -14,12 +14,9 @@ import math
 
 import numpy as np
 
-from surrogate.dem.config import DemConfig
+from surrogate.dem.config import PACKING_FRACTION, DemConfig
 from surrogate.dem.emitter import mean_particle_mass
 from surrogate.dem.simulation import Dem
-
-PACKING_FRACTION = 0.82
-"""Area fraction of a random dense packing of these polydisperse disks [-]."""
 
 
 def pile_height(cfg: DemConfig, n: int, angle_deg: float = 35.0) -> float:

@@ -25,8 +25,28 @@ smallest disks): ``t_c = pi sqrt(m_eff,min / k_n)`` with
 1979; O'Sullivan & Bray 2004 for the safety margin). The stability limit
 accepted without ``force`` is ``stable_dt = t_c / dt_safety_factor``.
 Symplectic Euler on a single linear contact is unstable above
-``dt = (2 / pi) t_c``; in a dense packing each disk has several contacts so
-the true limit is lower (~0.3-0.45 t_c), hence the default factor 15.
+``dt = (2 / pi) t_c``; in a dense packing each disk has several contacts and
+the limit is much lower: on the settled 20,000-disk pile under the hardest
+load of the paper design (feeder and inflow at 2 t/s), runs of 4 s were
+stable at 0.22 t_c and blew up at 0.26 t_c (``benchmarks/bench_dem_step.py``).
+The default factor 15 (dt = 0.067 t_c) stays 3.3x under the largest step
+measured stable and 3.9x under the smallest measured unstable one; the
+smallest factor accepted, 5 (0.2 t_c), leaves 1.1x.
+
+Blow-up guard
+-------------
+Every step the DEM checks each disk's speed against ``guard_speed_factor``
+times the free-fall speed from the highest point anything entered at
+(``sqrt(v_inlet^2 + 2 g h)``) and that its centre lies inside the container
+(the bounding box of the walls, widened by ``diameter_max``; never below
+it); every ``GUARD_INTERVAL`` seconds of simulated time
+(``simulation.py``) it checks the mechanical energy (kinetic + potential
+about the floor + elastic) against the energy it held at the first check
+plus what entered minus what the feeders took (a dissipative system never
+gains energy), and the largest overlap. A run that fails stops with
+``DemBlowUp`` naming what was seen, when, and why. The nonsmooth method
+keeps no contact springs, so its energy check leaves the elastic term out (a
+penetration its sweeps leave is an error of the solve, not stored energy).
 """
 
 from __future__ import annotations
@@ -41,6 +61,20 @@ from cosim.errors import ValidationError
 
 GRAVITY = 9.81
 """Gravitational acceleration [m/s^2], along -y."""
+
+METHODS = ("explicit", "nonsmooth")
+"""DEM methods (``DemConfig.method``)."""
+
+PACKING_FRACTION = 0.82
+"""Area fraction of a random dense packing of these polydisperse disks [-]."""
+
+BEVERLOO_C = 0.66
+"""Default discharge constant C of the 2D Beverloo law [-] (``orifice_capacity``,
+with k = 1.5), measured on this DEM's own orifice flow with the default
+material: a bunker emptying through a 4 and a 5 m opening in a raised floor,
+two seeds each, gave C = 0.71, 0.53 (intermittent arches), 0.69, 0.69; mean
+0.66, standard deviation 0.08 (``examples/dem_orifice.py``). Openings of
+2.5 m and less jam within seconds (arches of these rough disks)."""
 
 MIN_RESTITUTION = 0.25
 """Smallest restitution a clipped linear dashpot reaches with zeta <= 0.6."""
@@ -88,7 +122,10 @@ class DemConfig:
         Height above the floor of the zone from which the feeder draws [m]
         (1.0, about two layers of disks).
     max_discharge_rate : float
-        Largest feeder rate [kg/s] (2000; paper: 2 t/s).
+        Largest feeder rate setpoint [kg/s] (2000; paper: 2 t/s).
+    beverloo_c, beverloo_k : float
+        Constants of the orifice capacity that bounds each feeder
+        (``orifice_capacity``) [-] (C = BEVERLOO_C, k = 1.5).
 
     Material
     --------
@@ -127,7 +164,52 @@ class DemConfig:
         Verlet-list skin [m] (0.05); lists are rebuilt when a disk has moved
         more than skin / 2 since the last build.
     dt_safety_factor : float
-        stable_dt = t_c / dt_safety_factor [-] (15, >= 5).
+        stable_dt = t_c / dt_safety_factor [-] (15, >= 5): 0.067 t_c, 3.3x
+        under the 0.22 t_c measured stable on a dense pile (module docstring).
+    threads : int
+        Threads of the explicit DEM's force kernel and integration [-] (1;
+        0: all of numba's, ``NUMBA_NUM_THREADS``). Any count gives the same
+        bits; scenes under ``kernels.PARALLEL_MIN_DISKS`` disks always run on
+        one. One by default because a thread that the system deschedules
+        stalls every step: on this project's shared 2-core machine at a load
+        average of ~9, 2 threads ran a 20,000-disk pile at 0.14x the speed
+        of one (``benchmarks/bench_dem_threads.py``, README "Threads").
+
+    Method
+    ------
+    method : str
+        ``"explicit"`` (the smooth spring-dashpot DEM, ``kernels.py``) or
+        ``"nonsmooth"`` (time-implicit, ``nonsmooth.py``; Servin et al. 2014)
+        ("explicit").
+    nonsmooth_dt : float
+        Default time step of the nonsmooth method [s] (0.011, the paper's);
+        it has no stability limit.
+    solver_iterations : int
+        Most projected Gauss-Seidel sweeps per nonsmooth step [-] (100, the
+        paper's).
+    solver_tolerance : float
+        A sweep whose largest velocity change is below this ends the solve
+        [m/s] (1e-6).
+    stabilization_steps : float
+        Nonsmooth penetration relaxation time tau in steps [-] (2: a
+        penetration beyond the compliance's is removed over about 3 steps).
+    impact_speed : float
+        Approach speed above which a nonsmooth contact obeys Newton's impact
+        law with ``restitution`` [m/s] (0.5; above g h = 0.11 m/s at 11 ms,
+        so resting contacts stay inelastic).
+
+    Blow-up guard (module docstring)
+    --------------------------------
+    guard_speed_factor : float
+        A disk faster than this times the free-fall speed from the highest
+        entry point has blown up [-] (2.0, > 1).
+    guard_energy_growth : float
+        Largest gain of mechanical energy over the budget, as a fraction of
+        the budget [-] (0.5, > 0). Loose on purpose: the symplectic Euler
+        energy of a stable contact oscillates by ~ (pi / 2) dt / t_c of its
+        kinetic energy; the speed check is the sharp one.
+    guard_overlap_ratio : float
+        Largest overlap / smaller diameter of a sound run [-] (0.5, in (0, 1]).
     """
 
     floor_width: float = 160.0
@@ -140,6 +222,8 @@ class DemConfig:
     outlet_width: float = 8.0
     feeder_zone_height: float = 1.0
     max_discharge_rate: float = 2000.0
+    beverloo_c: float = BEVERLOO_C
+    beverloo_k: float = 1.5
     density: float = 2700.0
     normal_stiffness: float = 4.0e7
     tangential_stiffness_ratio: float = 2.0 / 7.0
@@ -151,6 +235,16 @@ class DemConfig:
     diameter_max: float = 0.48
     skin: float = 0.05
     dt_safety_factor: float = 15.0
+    threads: int = 1
+    method: str = "explicit"
+    nonsmooth_dt: float = 0.011
+    solver_iterations: int = 100
+    solver_tolerance: float = 1e-6
+    stabilization_steps: float = 2.0
+    impact_speed: float = 0.5
+    guard_speed_factor: float = 2.0
+    guard_energy_growth: float = 0.5
+    guard_overlap_ratio: float = 0.5
 
     def __post_init__(self):
         self.inlets = _pairs(self.inlets, "inlets").tolist()
@@ -175,7 +269,8 @@ class DemConfig:
             setattr(self, name, value)
         for name, low, high in (("friction", 0.0, 10.0), ("rolling_resistance", 0.0, 10.0),
                                 ("cohesion", 0.0, math.inf), ("inlet_velocity", 0.0, 1e3),
-                                ("max_discharge_rate", 0.0, 1e6)):
+                                ("max_discharge_rate", 0.0, 1e6), ("beverloo_c", 0.0, 10.0),
+                                ("beverloo_k", 0.0, 10.0)):
             value = float(getattr(self, name))
             if not math.isfinite(value) and high != math.inf or not low <= value <= high:
                 raise ValidationError(name, f"in [{low:g}, {high:g}]", f"got {value!r}")
@@ -191,6 +286,36 @@ class DemConfig:
         if not float(self.dt_safety_factor) >= 5.0:
             raise ValidationError("dt_safety_factor", ">= 5", f"got {self.dt_safety_factor!r}")
         self.dt_safety_factor = float(self.dt_safety_factor)
+        if self.method not in METHODS:
+            raise ValidationError("method", f"one of {list(METHODS)}", f"got {self.method!r}")
+        if self.method == "nonsmooth" and self.cohesion > 0:
+            raise ValidationError("cohesion", "0 with method = \"nonsmooth\" (not modelled)",
+                                  f"got {self.cohesion!r}")
+        iterations = self.solver_iterations
+        if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) \
+                or not 1 <= iterations <= 100_000:
+            raise ValidationError("solver_iterations", "an integer in [1, 100000]",
+                                  f"got {iterations!r}")
+        self.solver_iterations = int(iterations)
+        threads = self.threads
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) \
+                or not 0 <= threads <= 4096:
+            raise ValidationError("threads", "an integer in [0, 4096] (0: all)",
+                                  f"got {threads!r}")
+        self.threads = int(threads)
+        for name in ("solver_tolerance", "stabilization_steps"):
+            value = float(getattr(self, name))
+            if not (math.isfinite(value) and 0.0 <= value <= 1e3):
+                raise ValidationError(name, "in [0, 1000]", f"got {value!r}")
+            setattr(self, name, value)
+        for name, low, high in (("nonsmooth_dt", 0.0, 1.0), ("impact_speed", 0.0, 1e3),
+                                ("guard_speed_factor", 1.0, 1e6),
+                                ("guard_energy_growth", 0.0, 1e6),
+                                ("guard_overlap_ratio", 0.0, 1.0)):
+            value = float(getattr(self, name))
+            if not (math.isfinite(value) and low < value <= high):
+                raise ValidationError(name, f"in ({low:g}, {high:g}]", f"got {value!r}")
+            setattr(self, name, value)
         half = self.floor_width / 2
         for x in self.outlets:
             if abs(x) + self.outlet_width / 2 > half - self.diameter_max:
@@ -210,6 +335,41 @@ class DemConfig:
         """Diameter [m] of a sphere of ``mass`` [kg], clipped to the size range."""
         d = np.cbrt(6.0 * np.asarray(mass, dtype=np.float64) / (math.pi * self.density))
         return np.clip(d, self.diameter_min, self.diameter_max)
+
+    @property
+    def mean_diameter(self) -> float:
+        """Mean disk diameter [m] of disk volumes uniform in [d_min^3, d_max^3]."""
+        lo, hi = self.diameter_min, self.diameter_max
+        if hi - lo < 1e-12 * hi:
+            return hi
+        # E[d] = (3/4) (hi^4 - lo^4) / (hi^3 - lo^3)
+        return 0.75 * (hi ** 4 - lo ** 4) / (hi ** 3 - lo ** 3)
+
+    @property
+    def areal_bulk_density(self) -> float:
+        """Bulk mass per area of the 2D pile [kg/m^2]: ``PACKING_FRACTION`` times
+        the mean disk (sphere) mass over the mean disk area."""
+        lo, hi = self.diameter_min, self.diameter_max
+        if hi - lo < 1e-12 * hi:
+            d3, d2 = hi ** 3, hi ** 2
+        else:
+            d3 = 0.5 * (hi ** 3 + lo ** 3)
+            d2 = 0.6 * (hi ** 5 - lo ** 5) / (hi ** 3 - lo ** 3)
+        return PACKING_FRACTION * self.density * (math.pi / 6.0 * d3) / (math.pi / 4.0 * d2)
+
+    def orifice_capacity(self, width: float | None = None) -> float:
+        """Largest mass flow [kg/s] an opening of ``width`` [m] (default
+        ``outlet_width``) passes: the 2D form of Beverloo's law (Beverloo,
+        Leniger and van de Velde 1961, Chem. Eng. Sci. 15:260, for a slot),
+        ``W = C rho_2D sqrt(g) (b - k d)^(3/2)``, with ``rho_2D`` the
+        ``areal_bulk_density`` [kg/m^2], ``g`` = 9.81 m/s^2, ``b`` the width
+        [m], ``d`` the ``mean_diameter`` [m], ``C = beverloo_c`` and
+        ``k = beverloo_k``; 0 when ``b <= k d`` (the opening arches over).
+        The defaults are this DEM's own orifice flow (``BEVERLOO_C``): 2.1
+        t/s through 2 m, 25 t/s through the default 8 m."""
+        b = self.outlet_width if width is None else float(width)
+        free = max(b - self.beverloo_k * self.mean_diameter, 0.0)
+        return self.beverloo_c * self.areal_bulk_density * math.sqrt(GRAVITY) * free ** 1.5
 
     @property
     def tangential_stiffness(self) -> float:

@@ -46,7 +46,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from cosim.numerics import HOT_JIT
 
@@ -129,8 +129,10 @@ def _doubled(values, used):
 
 
 @njit(cache=True)
-def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_to_old):
-    """Half Verlet list (CSR, neighbours sorted) with contact history carried over.
+def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, old_hn, new_to_old):
+    """Half Verlet list (CSR, neighbours sorted) with contact history carried
+    over (``ht``, ``hr``, ``hn``: three values per pair; the explicit DEM uses
+    the first two, the nonsmooth one all three).
 
     ``new_to_old[i]`` is the row disk i had when the old list was built
     (-1 for a new disk); the mapping must be increasing where defined, so
@@ -140,7 +142,7 @@ def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_t
     start = np.zeros(n + 1, dtype=np.int64)
     nbr = np.empty(8 * n + 16, dtype=np.int64)
     if n == 0:
-        return start, nbr[:0], np.zeros(0), np.zeros(0)
+        return start, nbr[:0], np.zeros(0), np.zeros(0), np.zeros(0)
     rmax = radius.max()
     xmin, ymin, cs, nx, ny, cstart, members = _cell_grid(pos, 2.0 * rmax + skin)
     k = 0
@@ -172,6 +174,7 @@ def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_t
     nbr = nbr[:k].copy()
     ht = np.zeros(k)
     hr = np.zeros(k)
+    hn = np.zeros(k)
     for i in range(n):
         io = new_to_old[i]
         if io < 0 or io + 1 >= old_start.shape[0]:
@@ -187,7 +190,8 @@ def build_pair_list(pos, radius, skin, old_start, old_nbr, old_ht, old_hr, new_t
             if q < q_end and old_nbr[q] == jo:
                 ht[p] = old_ht[q]
                 hr[p] = old_hr[q]
-    return start, nbr, ht, hr
+                hn[p] = old_hn[q]
+    return start, nbr, ht, hr, hn
 
 
 @njit(inline="always", **HOT)
@@ -200,7 +204,8 @@ def _closest_on_segment(px, py, ax, ay, bx, by):
 
 
 @njit(cache=True)
-def build_wall_list(pos, radius, skin, walls, old_start, old_wall, old_ht, old_hr, new_to_old):
+def build_wall_list(pos, radius, skin, walls, old_start, old_wall, old_ht, old_hr, old_hn,
+                    new_to_old):
     """Disk-segment candidate list (CSR) within ``r_i + skin``, history carried over."""
     n = pos.shape[0]
     nw = walls.shape[0]
@@ -223,6 +228,7 @@ def build_wall_list(pos, radius, skin, walls, old_start, old_wall, old_ht, old_h
     wall = wall[:k].copy()
     ht = np.zeros(k)
     hr = np.zeros(k)
+    hn = np.zeros(k)
     for i in range(n):
         io = new_to_old[i]
         if io < 0 or io + 1 >= old_start.shape[0]:
@@ -232,7 +238,8 @@ def build_wall_list(pos, radius, skin, walls, old_start, old_wall, old_ht, old_h
                 if old_wall[q] == wall[p]:
                     ht[p] = old_ht[q]
                     hr[p] = old_hr[q]
-    return start, wall, ht, hr
+                    hn[p] = old_hn[q]
+    return start, wall, ht, hr, hn
 
 
 @njit(inline="always", **HOT)
@@ -264,10 +271,11 @@ def _contact(kn, kt, cn, ct, mu, mur, kr_coef, coh, delta, vn, vt, wrel, m_eff, 
     return fn - coh, ft, mr, xi, theta
 
 
-@njit(**HOT)
-def compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht, hr,
-                   wall_start, wall, wall_ht, wall_hr, walls, params, dt):
-    """Contact forces [N] and torques [N m] of all disks; updates contact history."""
+@njit(parallel=True, **HOT)
+def pair_pass(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht, hr,
+              wall_start, wall, wall_ht, wall_hr, walls, params, dt, pair_force, pair_torque):
+    """Pass 1 of ``compute_forces``: pair forces stored per pair, each disk's
+    own share (its pairs in list order, then its walls) summed into its row."""
     n = pos.shape[0]
     kn = params[P_KN]
     kt = params[P_KT]
@@ -277,11 +285,7 @@ def compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torqu
     mur = params[P_MUR]
     krc = params[P_KR]
     coh = params[P_COH]
-    for i in range(n):
-        force[i, 0] = 0.0
-        force[i, 1] = 0.0
-        torque[i] = 0.0
-    for i in range(n):
+    for i in prange(n):
         xi_ = pos[i, 0]
         yi = pos[i, 1]
         ri = radius[i]
@@ -298,6 +302,9 @@ def compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torqu
             if d2 >= rsum * rsum:
                 ht[p] = 0.0
                 hr[p] = 0.0
+                pair_force[p, 0] = 0.0
+                pair_force[p, 1] = 0.0
+                pair_torque[p] = 0.0
                 continue
             d = math.sqrt(d2)
             nx_ = dx / d
@@ -319,9 +326,9 @@ def compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torqu
             fxi += fx
             fyi += fy
             ti += -ri * ft + mr
-            force[j, 0] -= fx
-            force[j, 1] -= fy
-            torque[j] += -rj * ft - mr
+            pair_force[p, 0] = fx
+            pair_force[p, 1] = fy
+            pair_torque[p] = -rj * ft - mr
         for p in range(wall_start[i], wall_start[i + 1]):
             w = wall[p]
             cx, cy = _closest_on_segment(xi_, yi, walls[w, 0], walls[w, 1], walls[w, 2], walls[w, 3])
@@ -345,16 +352,102 @@ def compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torqu
             fxi += fn * nx_ - ft * ny_
             fyi += fn * ny_ + ft * nx_
             ti += -ri * ft + mr
-        force[i, 0] += fxi
-        force[i, 1] += fyi
-        torque[i] += ti
+        force[i, 0] = fxi
+        force[i, 1] = fyi
+        torque[i] = ti
+
+
+@njit(parallel=True, **HOT)
+def compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht, hr,
+                   wall_start, wall, wall_ht, wall_hr, walls, params, dt, pair_force, pair_torque,
+                   rev_start, rev_pair):
+    """Contact forces [N] and torques [N m] of all disks; updates contact history.
+
+    Runs on all threads (``prange``) and gives the same bits for any thread
+    count: each disk's sums are gathered in a fixed order. Pass 1
+    (``pair_pass``: disk i owns the pairs ``start[i]:start[i+1]`` and its
+    wall contacts): each pair's force on i and torque on j are stored per
+    pair (``pair_force`` (P, 2), ``pair_torque`` (P,)) and i sums its own
+    share in list order. Pass 2: disk j adds the opposite of the forces of
+    the pairs it is the partner of, in increasing pair order (``rev_start``,
+    ``rev_pair``: ``reverse_pairs``). ``run_steps`` fuses pass 2 with the
+    integration (``gather_and_integrate``): one join fewer per step.
+    """
+    pair_pass(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht, hr,
+              wall_start, wall, wall_ht, wall_hr, walls, params, dt, pair_force, pair_torque)
+    for j in prange(pos.shape[0]):
+        fxj, fyj, tj = _gathered(j, pair_force, pair_torque, rev_start, rev_pair)
+        force[j, 0] += fxj
+        force[j, 1] += fyj
+        torque[j] += tj
+
+
+@njit(inline="always", **HOT)
+def _gathered(j, pair_force, pair_torque, rev_start, rev_pair):
+    fxj = 0.0
+    fyj = 0.0
+    tj = 0.0
+    for q in range(rev_start[j], rev_start[j + 1]):
+        p = rev_pair[q]
+        fxj -= pair_force[p, 0]
+        fyj -= pair_force[p, 1]
+        tj += pair_torque[p]
+    return fxj, fyj, tj
+
+
+@njit(parallel=True, **HOT)
+def gather_and_integrate(dt, g, pos, vel, omega, force, torque, inv_mass, inv_inertia, ref_pos,
+                         limit2, pair_force, pair_torque, rev_start, rev_pair):
+    """Pass 2 of ``compute_forces`` and the symplectic Euler step of each disk
+    in one loop on all threads; returns how many disks moved more than
+    ``sqrt(limit2)`` [m] since the list build (an integer sum: any thread count)."""
+    moved = 0
+    for i in prange(pos.shape[0]):
+        fxj, fyj, tj = _gathered(i, pair_force, pair_torque, rev_start, rev_pair)
+        fx = force[i, 0] + fxj
+        fy = force[i, 1] + fyj
+        t = torque[i] + tj
+        force[i, 0] = fx
+        force[i, 1] = fy
+        torque[i] = t
+        vel[i, 0] += fx * inv_mass[i] * dt
+        vel[i, 1] += (fy * inv_mass[i] - g) * dt
+        omega[i] += t * inv_inertia[i] * dt
+        pos[i, 0] += vel[i, 0] * dt
+        pos[i, 1] += vel[i, 1] * dt
+        dx = pos[i, 0] - ref_pos[i, 0]
+        dy = pos[i, 1] - ref_pos[i, 1]
+        if dx * dx + dy * dy > limit2:
+            moved += 1
+    return moved
+
+
+@njit(cache=True)
+def reverse_pairs(start, nbr):
+    """For each disk j the pairs ``p`` with ``nbr[p] == j``, in increasing p
+    (CSR ``rev_start`` (N+1,), ``rev_pair`` (P,)): the partner side of the
+    half list, for the gather of ``compute_forces``."""
+    n = start.shape[0] - 1
+    rev_start = np.zeros(n + 1, np.int64)
+    for p in range(nbr.shape[0]):
+        rev_start[nbr[p] + 1] += 1
+    for j in range(n):
+        rev_start[j + 1] += rev_start[j]
+    fill = rev_start[:-1].copy()
+    rev_pair = np.empty(nbr.shape[0], np.int64)
+    for p in range(nbr.shape[0]):
+        j = nbr[p]
+        rev_pair[fill[j]] = p
+        fill[j] += 1
+    return rev_start, rev_pair
 
 
 @njit(**HOT)
 def run_steps(n_steps, dt, time, pos, vel, omega, force, torque, radius, body_mass, inv_mass,
               inv_inertia, start, nbr, ht, hr, wall_start, wall, wall_ht, wall_hr, walls, params,
               ref_pos, half_skin, candidates, outlet_lo, outlet_hi, zone_top, rates, credits,
-              credit_cap, tracked_mass, removed):
+              credit_cap, tracked_mass, removed, speed_limit, box, pair_force, pair_torque,
+              rev_start, rev_pair):
     """Advance up to ``n_steps`` steps of ``dt`` [s] from ``time`` [s].
 
     Stops early after a step in which a disk moved more than ``half_skin``
@@ -367,54 +460,106 @@ def run_steps(n_steps, dt, time, pos, vel, omega, force, torque, radius, body_ma
     credit is capped at ``credit_cap`` [kg] so an empty feeder does not
     store up a burst.
 
-    Returns ``(steps_done, time, n_removed, rebuild_needed)``.
+    Blow-up guard: also stops after a step that left a disk faster than
+    ``speed_limit`` [m/s] (or with a non-finite velocity) or outside the
+    container ``box = (x_min, x_max, y_min)`` [m]; its row is returned.
+
+    Returns ``(steps_done, time, n_removed, rebuild_needed, bad_row, bad_kind)``
+    with ``bad_kind`` one of ``GUARD_NONE``, ``GUARD_SPEED``, ``GUARD_OUTSIDE``.
     """
     n = pos.shape[0]
     g = params[P_G]
     limit2 = half_skin * half_skin
+    speed2 = speed_limit * speed_limit
     n_removed = 0
     for step in range(n_steps):
-        compute_forces(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht, hr,
-                       wall_start, wall, wall_ht, wall_hr, walls, params, dt)
-        moved = False
-        for i in range(n):
-            vel[i, 0] += force[i, 0] * inv_mass[i] * dt
-            vel[i, 1] += (force[i, 1] * inv_mass[i] - g) * dt
-            omega[i] += torque[i] * inv_inertia[i] * dt
-            pos[i, 0] += vel[i, 0] * dt
-            pos[i, 1] += vel[i, 1] * dt
-            dx = pos[i, 0] - ref_pos[i, 0]
-            dy = pos[i, 1] - ref_pos[i, 1]
-            if dx * dx + dy * dy > limit2:
-                moved = True
+        pair_pass(pos, vel, omega, radius, body_mass, inv_inertia, force, torque, start, nbr, ht,
+                  hr, wall_start, wall, wall_ht, wall_hr, walls, params, dt, pair_force,
+                  pair_torque)
+        moved = gather_and_integrate(dt, g, pos, vel, omega, force, torque, inv_mass,
+                                     inv_inertia, ref_pos, limit2, pair_force, pair_torque,
+                                     rev_start, rev_pair) > 0
         time += dt
-        for o in range(rates.shape[0]):
-            if rates[o] <= 0.0:
-                continue
-            credits[o] += rates[o] * dt
-            while True:
-                best = -1
-                for c in range(candidates.shape[0]):
-                    i = candidates[c]
-                    if i < 0:
-                        continue
-                    if outlet_lo[o] <= pos[i, 0] <= outlet_hi[o] and pos[i, 1] <= zone_top:
-                        if best < 0 or pos[i, 1] < pos[best, 1]:
-                            best = i
-                if best < 0:
-                    credits[o] = min(credits[o], credit_cap)
-                    break
-                if credits[o] < tracked_mass[best] or n_removed == removed.shape[0]:
-                    break
-                credits[o] -= tracked_mass[best]
-                removed[n_removed] = best
-                n_removed += 1
-                for c in range(candidates.shape[0]):
-                    if candidates[c] == best:
-                        candidates[c] = -1
+        bad_row, bad_kind = guard_scan(pos, vel, speed2, box)
+        if bad_kind != GUARD_NONE:
+            return step + 1, time, n_removed, moved, bad_row, bad_kind
+        n_removed = feed(dt, pos, candidates, outlet_lo, outlet_hi, zone_top, rates, credits,
+                         credit_cap, tracked_mass, removed, n_removed)
         if n_removed > 0 or moved:
-            return step + 1, time, n_removed, moved
-    return n_steps, time, n_removed, False
+            return step + 1, time, n_removed, moved, -1, GUARD_NONE
+    return n_steps, time, n_removed, False, -1, GUARD_NONE
+
+
+PARALLEL_MIN_DISKS = 4000
+"""Fewest disks for which ``Dem.step`` runs the kernels on all threads; below
+it on one (``numba.set_num_threads(1)``): a step is then too short for the
+threads' start and join to pay, and on a busy machine a descheduled thread
+stalls every step. The bits are the same either way."""
+
+
+@njit(**HOT)
+def feed(dt, pos, candidates, outlet_lo, outlet_hi, zone_top, rates, credits, credit_cap,
+         tracked_mass, removed, n_removed):
+    """One step of the feeders (rule in ``run_steps``); returns the rows removed so far."""
+    for o in range(rates.shape[0]):
+        if rates[o] <= 0.0:
+            continue
+        credits[o] += rates[o] * dt
+        while True:
+            best = -1
+            for c in range(candidates.shape[0]):
+                i = candidates[c]
+                if i < 0:
+                    continue
+                if outlet_lo[o] <= pos[i, 0] <= outlet_hi[o] and pos[i, 1] <= zone_top:
+                    if best < 0 or pos[i, 1] < pos[best, 1]:
+                        best = i
+            if best < 0:
+                credits[o] = min(credits[o], credit_cap)
+                break
+            if credits[o] < tracked_mass[best] or n_removed == removed.shape[0]:
+                break
+            credits[o] -= tracked_mass[best]
+            removed[n_removed] = best
+            n_removed += 1
+            for c in range(candidates.shape[0]):
+                if candidates[c] == best:
+                    candidates[c] = -1
+    return n_removed
+
+
+GUARD_NONE, GUARD_SPEED, GUARD_OUTSIDE = 0, 1, 2
+"""Codes of what the per-step blow-up guard saw (``run_steps``)."""
+
+
+@njit(cache=True, parallel=True, error_model="numpy")  # no fastmath: it may assume NaN away
+def _guard_count(pos, vel, speed2, box):
+    bad = 0
+    for i in prange(pos.shape[0]):
+        s2 = vel[i, 0] * vel[i, 0] + vel[i, 1] * vel[i, 1]
+        x = pos[i, 0]
+        # written so that NaN fails the tests
+        if not (s2 <= speed2 and box[0] <= x <= box[1] and pos[i, 1] >= box[2]):
+            bad += 1
+    return bad
+
+
+@njit(cache=True, error_model="numpy")
+def guard_scan(pos, vel, speed2, box):
+    """First row faster than ``sqrt(speed2)`` [m/s] (or non-finite) or outside
+    ``box = (x_min, x_max, y_min)`` [m], and what it was (``GUARD_*``); the
+    count runs on all threads, the search only after a failure."""
+    if _guard_count(pos, vel, speed2, box) == 0:
+        return -1, GUARD_NONE
+    for i in range(pos.shape[0]):
+        s2 = vel[i, 0] * vel[i, 0] + vel[i, 1] * vel[i, 1]
+        # written so that NaN fails the test
+        if not s2 <= speed2:
+            return i, GUARD_SPEED
+        x = pos[i, 0]
+        if not (box[0] <= x <= box[1] and pos[i, 1] >= box[2]):
+            return i, GUARD_OUTSIDE
+    return -1, GUARD_NONE
 
 
 @njit(cache=True)

@@ -246,9 +246,14 @@ def advance_guarded(dem, seconds: float) -> str | None:
     return why it blew up, or None. The step count is rounded as
     ``Dem.advance`` rounds it, so a stable run takes exactly the steps of
     ``dem.advance(seconds)`` (checked: bit-identical outflow and fields)."""
+    from surrogate.dem.simulation import DemBlowUp
+
     steps = int(np.ceil(seconds / dem.dt - 1e-9))
     for chunk in np.diff(np.linspace(0, steps, GUARD_CHECKS_PER_STEP + 1).round()):
-        dem.step(int(chunk))
+        try:
+            dem.step(int(chunk))
+        except DemBlowUp as exc:  # the DEM's own guard, checked every step
+            return str(exc)
         reason = instability(dem)
         if reason:
             return reason
