@@ -5,6 +5,8 @@ error, noise-floor refusal, hysteresis); measured cards are checked where they a
 made (tests of ``minetwin fidelity calibrate``).
 """
 
+from pathlib import Path
+
 import pytest
 
 from cosim.errors import ValidationError
@@ -113,3 +115,37 @@ def test_cards_round_trip_through_strict_json():
         FidelityCard.from_json({"model": "rom", "rows": []})
     with pytest.raises(ValidationError, match=r"rows\[0\]\.tracking_error"):
         FidelityCard(model="rom", rows=(CardRow(1.0, 1.0, 30.0, float("nan"), 0.0, 1.0),))
+
+
+SHIPPED = Path(__file__).resolve().parents[1] / "surrogate" / "rom" / "data" / "fidelity"
+
+
+def test_the_shipped_cards_are_what_calibrate_makes_of_the_shipped_evaluation(tmp_path):
+    """The cards are measured: `minetwin fidelity calibrate` on the committed
+    evaluation summary gives the committed cards again, row for row."""
+    import hashlib
+
+    from cosim.fidelity import read_cards
+    from minetwin.cli import main
+
+    evaluation = SHIPPED / "quick_design_evaluation.json"
+    out = tmp_path / "cards.json"
+    assert main(["fidelity", "calibrate", "--summary", str(evaluation), "--out", str(out)]) == 0
+    shipped = read_cards(SHIPPED / "quick_design_cards.json")
+    assert [(c.model, c.rows) for c in read_cards(out)] == [(c.model, c.rows) for c in shipped]
+    digest = hashlib.sha256(evaluation.read_bytes()).hexdigest()
+    assert all(c.provenance["summary_sha256"] == digest for c in shipped)
+    assert [c.model for c in shipped] == ["fifo", "mixing", "rom", "dem"]
+
+
+def test_choose_on_the_command_line(capsys):
+    from minetwin.cli import main
+
+    cards = str(SHIPPED / "quick_design_cards.json")
+    scene = ["fidelity", "choose", "--cards", cards, "--throughput", "600", "--held-mass", "90e3"]
+    assert main(scene + ["--tracking-error", "0.95"]) == 0
+    assert capsys.readouterr().out.startswith("fifo: ")
+    assert main(scene + ["--tracking-error", "0.6"]) == 0
+    assert capsys.readouterr().out.startswith("mixing: ")
+    assert main(scene + ["--tracking-error", "0.01"]) == 2
+    assert "noise floor" in capsys.readouterr().err
