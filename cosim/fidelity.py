@@ -371,5 +371,20 @@ def read_cards(path) -> list[FidelityCard]:
             for k, c in enumerate(data.get("cards", []))]
 
 
+CARDS_ENTRY_POINT_GROUP = "minetwin.fidelity"
+"""Entry points naming a cards file (a ``pathlib.Path`` attribute of a module): the
+cards a ``model = "auto"`` stockpile chooses by when its scenario names none."""
+
+
+def registered_cards() -> list[FidelityCard]:
+    """The cards of every registered cards file, in entry-point name order."""
+    from importlib.metadata import entry_points
+
+    cards = []
+    for ep in sorted(entry_points(group=CARDS_ENTRY_POINT_GROUP), key=lambda ep: ep.name):
+        cards += read_cards(ep.load())
+    return cards
+
+
 def _refuse_constant(field_name, constant):
     raise ValidationError(field_name, "strict JSON (no NaN or Infinity)", f"found {constant}")

@@ -360,8 +360,12 @@ def summarize(simulation: Simulation) -> dict:
         "wall_s": float(master.wall_s),
         "realtime_factor": float(master.time / master.wall_s) if master.wall_s > 0 else None,
         "seed": int(simulation.config["simulation"]["seed"]),
-        "storage_model": next((simulation.config["assets"][name]["model"] for name in
-                               assets_of_kind(simulation.config, "stockpile")), None),
+        "storage_model": next(((simulation.assets[name].fidelity or {}).get(
+            "model", simulation.config["assets"][name]["model"])
+            for name in assets_of_kind(simulation.config, "stockpile")), None),
+        "fidelity": {name: simulation.assets[name].fidelity
+                     for name in assets_of_kind(simulation.config, "stockpile")
+                     if simulation.assets[name].fidelity is not None},
         "step_s": float(master.step),
         "particles_created": int(plant.particles_created),
         "particles_in_plant": int(len(plant.particles)),

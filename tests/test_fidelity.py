@@ -149,3 +149,65 @@ def test_choose_on_the_command_line(capsys):
     assert capsys.readouterr().out.startswith("mixing: ")
     assert main(scene + ["--tracking-error", "0.01"]) == 2
     assert "noise floor" in capsys.readouterr().err
+
+
+PLANT = Path(__file__).resolve().parents[1] / "examples" / "cosim_tests" / "plant.toml"
+
+
+def _auto_plant(tmp_path, stockpile: dict):
+    from cosim.tomlfile import read_toml
+
+    raw = read_toml(PLANT, "scenario")
+    table = raw["assets"]["stockpile"]
+    table.update({"model": "auto", **stockpile})
+    table["initial_fill"] = {"mass_kg": 90e3, "trucks": "trucks", "crusher": "crusher"}
+    return raw
+
+
+@pytest.mark.parametrize("target, model", [(0.95, "fifo"), (0.6, "mixing"), (0.3, "dem")])
+def test_an_auto_stockpile_runs_the_cheapest_model_its_cards_allow(tmp_path, target, model,
+                                                                   capsys):
+    """The plant's stockpile (90 t, 400 kg/s) with the shipped cards: the ROM's card
+    needs the ROM file it was measured on, which this scene does not give, so a
+    target between the mixing and the DEM errors gets the DEM."""
+    from cosim.scenario import build, summarize
+
+    simulation = build(_auto_plant(tmp_path, {"accuracy": {"tracking_error": target}}))
+    try:
+        choice = simulation.assets["stockpile"].fidelity
+        assert choice["model"] == model
+        assert simulation.assets["stockpile"].model.name == model
+        assert f"model auto -> {model}" in capsys.readouterr().err
+        summary = summarize(simulation)
+        assert summary["storage_model"] == model
+        assert summary["fidelity"]["stockpile"]["target"] == {"tracking_error": target,
+                                                              "window_s": 30.0}
+        rows = {c["model"]: c for c in choice["compared"]}
+        assert rows[model]["tracking_error"] <= target
+        assert "rom" not in rows
+    finally:
+        simulation.close()
+
+
+def test_an_auto_stockpile_below_the_noise_floor_is_refused_on_the_command_line(tmp_path,
+                                                                               capsys):
+    from minetwin.cli import main
+
+    scenario = tmp_path / "plant.toml"
+    text = PLANT.read_text().replace(
+        'model = "fifo"', 'model = "auto"\naccuracy = { tracking_error = 0.05 }', 1)
+    text += ('\n[assets.stockpile.initial_fill]\nmass_kg = 90e3\ntrucks = "trucks"\n'
+             'crusher = "crusher"\n')
+    scenario.write_text(text)
+    assert main(["simulate", str(scenario), "--until", "5", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "assets.stockpile.accuracy.tracking_error" in err and "noise floor" in err
+
+
+def test_accuracy_only_with_auto_and_auto_needs_one_target(tmp_path):
+    from cosim.scenario import build
+
+    with pytest.raises(ValidationError, match="accuracy"):
+        build(_auto_plant(tmp_path, {"model": "fifo", "accuracy": {"tracking_error": 0.5}}))
+    with pytest.raises(ValidationError, match="accuracy"):
+        build(_auto_plant(tmp_path, {}))

@@ -85,6 +85,7 @@ class Stockpile(Asset):
         self.input_names = tuple(f"discharge_rate_{outlet}" for outlet in self.outlets)
         self._rate_inputs = tuple(zip(self.outlets, self.input_names))
         self.model = model.bind(plant.particles, self.owner)
+        self.fidelity = None  # the choice of a model = "auto" stockpile (cosim.fidelity)
         self.capacity = float(capacity)
         self._schedules = {}
         for outlet, (_, discharge) in outlets.items():
@@ -207,18 +208,40 @@ class InitialFill(Parameters):
     """The crusher whose FMU's fragmentation map crushed them."""
 
 
+class Accuracy(Parameters):
+    """The accuracy a ``model = "auto"`` stockpile must track its outflow with."""
+
+    tracking_error: number(0.0, 1.0)
+    """Largest tracking error (fraction of the outflow mass, ``cosim.fidelity``)."""
+    window_s: number(0.0, 3600.0, low_open=True, unit="s") = 30.0
+    """Window of the tracking error [s]."""
+
+
+class Budget(Parameters):
+    """The cost a ``model = "auto"`` stockpile may take."""
+
+    wall_s_per_s: number(0.0, 1e6, low_open=True, unit="s/s")
+    """Largest wall seconds per simulated second of the storage model."""
+
+
 class StockpileParameters(Parameters):
     """``[assets.NAME] kind = "stockpile"``: see ``Stockpile``; ``inlets`` and ``outlets``
-    are tables of named entry and exit points (``[assets.NAME.outlets.east]``)."""
+    are tables of named entry and exit points (``[assets.NAME.outlets.east]``).
+    ``model = "auto"`` with ``accuracy`` (or ``budget``) runs the cheapest model whose
+    fidelity card meets it (``choose_storage``; ``cards``: a cards file, default the
+    registered ones)."""
 
     model: Text = "fifo"
-    """Storage model (``cosim.storage``): fifo, mixing, rom, dem, ..."""
+    """Storage model (``cosim.storage``): fifo, mixing, rom, dem, ..., or "auto"."""
     options: dict = {}
     """Keyword options of the storage model."""
     capacity_kg: number(0.0, 1e9, low_open=True, unit="kg") = 2.0e6
     inlets: dict[str, InletParameters]
     outlets: dict[str, OutletParameters]
     initial_fill: InitialFill | None = None
+    accuracy: Accuracy | None = None
+    budget: Budget | None = None
+    cards: Text | None = None
 
     @model_validator(mode="after")
     def _complete(self):
@@ -228,6 +251,17 @@ class StockpileParameters(Parameters):
             raise refuse("inlets", "at least one [inlets.NAME] table", "got none")
         if not self.outlets:
             raise refuse("outlets", "at least one [outlets.NAME] table", "got none")
+        if self.model == AUTO:
+            if (self.accuracy is None) == (self.budget is None):
+                raise refuse("accuracy", "an accuracy or a budget table (one of them) with "
+                             'model = "auto"', "got both" if self.accuracy else "got neither")
+            if set(self.options) - {"model"}:
+                raise refuse("options", 'only "model" (the ROM file, given to the ROM if '
+                             'chosen) with model = "auto"', f"got {sorted(self.options)}")
+            return self
+        for key in ("accuracy", "budget", "cards"):
+            if getattr(self, key) is not None:
+                raise refuse(key, 'absent unless model = "auto"', f"model is {self.model!r}")
         try:
             storage_class(self.model, "model")
             check_storage_options(self.model, self.options, "options")
@@ -268,11 +302,15 @@ class StockpileKind(AssetKind):
 
     def build(self, name, p, context):
         sim = context.simulation
-        pile = Stockpile(name, context.plant, model=_storage(p.model, p.options, [sim["seed"], 1]),
+        choice = choose_storage(name, p) if p.model == AUTO else None
+        model = choice.model if choice is not None else p.model
+        options = p.options if model == p.model or model == "rom" else {}
+        pile = Stockpile(name, context.plant, model=_storage(model, options, [sim["seed"], 1]),
                          inlets={k: v.position_m for k, v in p.inlets.items()},
                          outlets={k: (v.position_m, v.discharge) for k, v in p.outlets.items()},
                          capacity=p.capacity_kg, sensor_window=sim["sensor_window_s"],
                          sensor_interval=sim["record_every_s"])
+        pile.fidelity = None if choice is None else choice.to_json()
         context.add(pile)
         fill = p.initial_fill
         if fill is not None and fill.mass_kg > 0:
@@ -281,6 +319,44 @@ class StockpileKind(AssetKind):
             fill_stockpile(pile, context.built[fill.trucks][0],
                            crusher_fmu.outputs()["fragmentation_map"], fill.mass_kg)
         return [pile]
+
+
+AUTO = "auto"
+"""The stockpile's ``model`` that lets its fidelity cards choose (``choose_storage``)."""
+
+
+def choose_storage(name: str, p: StockpileParameters):
+    """The storage model a ``model = "auto"`` stockpile runs: the cheapest whose
+    fidelity card meets ``p.accuracy`` (or the most accurate within ``p.budget``)
+    at the scene's operating point (``cosim.fidelity.choose``). The operating
+    point is conservative: the largest scheduled discharge summed over the
+    outlets, the initial fill as the held mass. A ROM card counts only with the
+    ROM file it was measured on (``options.model``, by SHA-256). Prints the
+    choice and why on stderr; returns the ``Choice``."""
+    import hashlib
+    import sys
+    from pathlib import Path
+
+    from cosim.fidelity import OperatingPoint, choose, read_cards, registered_cards
+    from cosim.storage import registered_models
+
+    cards = read_cards(p.cards) if p.cards else registered_cards()
+    rom_file = p.options.get("model")
+    rom_digest = (hashlib.sha256(Path(rom_file).read_bytes()).hexdigest()
+                  if isinstance(rom_file, str) and Path(rom_file).is_file() else None)
+    usable = [c for c in cards if c.model in registered_models()
+              and (c.model != "rom" or c.provenance.get("model_sha256") == rom_digest)]
+    throughput = sum(max(rate for _, rate in outlet.discharge) for outlet in p.outlets.values())
+    held = p.initial_fill.mass_kg if p.initial_fill is not None else 0.0
+    window = p.accuracy.window_s if p.accuracy is not None else 30.0
+    point = OperatingPoint(throughput_kg_s=min(throughput, MAX_DISCHARGE_RATE),
+                           held_mass_kg=held, window_s=window)
+    choice = choose(usable, point, field_name=f"assets.{name}",
+                    tracking_error=p.accuracy.tracking_error if p.accuracy else None,
+                    wall_s_per_s=p.budget.wall_s_per_s if p.budget else None)
+    print(f"{name}: model auto -> {choice.model}: {choice.reason} at "
+          f"{point.throughput_kg_s:g} kg/s and {held / 1e3:g} t", file=sys.stderr)
+    return choice
 
 
 def _storage(name: str, options: dict, rng_seed) -> StorageModel:

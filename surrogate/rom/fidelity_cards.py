@@ -13,10 +13,17 @@ reference run's wall time as its cost.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from cosim.errors import ValidationError
 from cosim.fidelity import REFERENCE_MODEL, CardRow, FidelityCard
 
 MODELS = ("fifo", "mixing", "rom")
+
+SHIPPED_CARDS = Path(__file__).with_name("data") / "fidelity" / "quick_design_cards.json"
+"""The cards measured on the quick design's three held-out scenarios (85-100 t piles,
+200-1500 kg/s; ``data/fidelity/quick_design_evaluation.json``), registered as the
+``minetwin.fidelity`` entry point ``quick_design``."""
 
 
 def cards_from_evaluation(summary: dict, *, provenance: dict) -> list[FidelityCard]:
