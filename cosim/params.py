@@ -19,7 +19,7 @@ import typing
 from typing import Annotated, Any
 
 import pydantic
-from pydantic import BaseModel, BeforeValidator, ConfigDict
+from pydantic import BaseModel, BeforeValidator, ConfigDict, model_validator
 from pydantic_core import PydanticCustomError
 
 from cosim.errors import ValidationError
@@ -134,6 +134,26 @@ def _fmu_parameters(value):
 
 
 FmuParameters = Annotated[dict[str, Any], BeforeValidator(_fmu_parameters)]
+
+
+class FmuAssetParameters(Parameters):
+    """Base of the table of an asset with an FMU (crusher, mill): ``parameters`` are
+    checked against the FMU's declared variables and their min/max at load."""
+
+    fmu: Text
+    """A built FMU name (fmus/build) or an .fmu path."""
+    parameters: FmuParameters = {}
+    """FMU parameters (checked against the FMU's declared variables and ranges)."""
+
+    @model_validator(mode="after")
+    def _fmu(self):
+        from cosim.fmu import check_fmu_parameters
+
+        try:
+            check_fmu_parameters(self.fmu, self.parameters)
+        except ValidationError as exc:
+            raise refuse_from(exc) from None
+        return self
 
 
 def _schedule(value):

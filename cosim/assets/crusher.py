@@ -38,13 +38,11 @@ Virtual sensors (hardness, grade, size) over the zone.
 from __future__ import annotations
 
 import numpy as np
-from pydantic import model_validator
 
 from cosim.assets import Asset, AssetSensors, Plant
 from cosim.comminution import apply_fragmentation
-from cosim.errors import ValidationError
 from cosim.kinds import AssetKind
-from cosim.params import FmuParameters, Parameters, Position, Text, number, refuse_from
+from cosim.params import FmuAssetParameters, Position, Text, number
 from cosim.master import CosimulationError
 from cosim.numerics import weighted_column_sums
 
@@ -172,7 +170,7 @@ class JawCrusher(Asset):
 
 
 # ------------------------------------------------------------------ scenario kind
-class CrusherParameters(Parameters):
+class CrusherParameters(FmuAssetParameters):
     """``[assets.NAME] kind = "crusher"``: a ``JawCrusher`` queue-and-zone asset with its
     crusher FMU (the jaw crusher ``"crusher"``, the cone crusher ``"cone_crusher"``, or any
     FMU with ``cosim.fmu.CRUSHER_INTERFACE``)."""
@@ -184,18 +182,6 @@ class CrusherParameters(Parameters):
     speed_rad_s: number(0.0, 1000.0, unit="rad/s") = 10.0
     zone_capacity_kg: number(0.0, 1e6, low_open=True, unit="kg") = 900.0
     jaw_throughput_kg_s: number(0.0, 1e5, low_open=True, unit="kg/s") = 1000.0
-    parameters: FmuParameters = {}
-    """FMU parameters (checked against the FMU's declared variables and ranges)."""
-
-    @model_validator(mode="after")
-    def _fmu(self):
-        from cosim.fmu import check_fmu_parameters
-
-        try:
-            check_fmu_parameters(self.fmu, self.parameters)
-        except ValidationError as exc:
-            raise refuse_from(exc) from None
-        return self
 
 
 class CrusherKind(AssetKind):

@@ -23,13 +23,11 @@ product) and is removed from the particle store.
 from __future__ import annotations
 
 import numpy as np
-from pydantic import model_validator
 
 from cosim.assets import EVENT_FIELDS, Asset, AssetSensors, Plant
 from cosim.comminution import mill_step
-from cosim.errors import ValidationError
 from cosim.kinds import AssetKind
-from cosim.params import FmuParameters, Parameters, Position, Text, number, refuse_from
+from cosim.params import FmuAssetParameters, Position, Text, number
 from cosim.master import CosimulationError
 from cosim.numerics import weighted_column_sums
 
@@ -166,7 +164,7 @@ class Mill(Asset):
 
 
 # ------------------------------------------------------------------ scenario kind
-class MillParameters(Parameters):
+class MillParameters(FmuAssetParameters):
     """``[assets.NAME] kind = "mill"``: a ``Mill`` with its mill FMU (``"mill"`` or any FMU
     with ``cosim.fmu.MILL_INTERFACE``)."""
 
@@ -177,17 +175,6 @@ class MillParameters(Parameters):
     product_threshold_kg: number(0.0, 1e3, low_open=True, unit="kg") = 0.01
     product_event_interval_s: number(0.0, 1e5, low_open=True, unit="s") = 60.0
     update_interval_s: number(0.0, 60.0, unit="s") = 0.0
-    parameters: FmuParameters = {}
-
-    @model_validator(mode="after")
-    def _fmu(self):
-        from cosim.fmu import check_fmu_parameters
-
-        try:
-            check_fmu_parameters(self.fmu, self.parameters)
-        except ValidationError as exc:
-            raise refuse_from(exc) from None
-        return self
 
 
 class MillKind(AssetKind):
