@@ -211,3 +211,27 @@ def test_accuracy_only_with_auto_and_auto_needs_one_target(tmp_path):
         build(_auto_plant(tmp_path, {"model": "fifo", "accuracy": {"tracking_error": 0.5}}))
     with pytest.raises(ValidationError, match="accuracy"):
         build(_auto_plant(tmp_path, {}))
+
+
+def test_the_mill_integrator_auto_keeps_the_exponential_where_the_explicit_is_unsafe():
+    """The plant's mill classifies fines at k_esc = 1000/s: the explicit update's
+    limit is about 1 ms, far below the 0.5 s step, so ``integrator = "auto"`` runs
+    the exponential integrator, bit for bit; a bad name is refused at load."""
+    from cosim.comminution import explicit_step_limit
+    from cosim.scenario import run_scenario
+    from cosim.tomlfile import read_toml
+
+    runs = {}
+    for integrator in ("exponential", "auto"):
+        raw = read_toml(PLANT, "scenario")
+        raw["assets"]["mill"]["integrator"] = integrator
+        simulation, _ = run_scenario(raw, until=200.0)
+        runs[integrator] = simulation.timeseries["mill.mass_kg"].to_numpy()
+        mill_fmu = simulation.master.components[[c.name for c in
+                                                 simulation.master.components].index("mill_fmu")]
+    assert runs["auto"].max() > 0 and (runs["auto"] == runs["exponential"]).all()
+    outputs = mill_fmu.outputs()
+    assert explicit_step_limit(1.0, outputs["breakage_rate"], outputs["escape_rate"]) < 0.01
+    raw["assets"]["mill"]["integrator"] = "implicit"
+    with pytest.raises(ValidationError, match="assets.mill.integrator"):
+        run_scenario(raw, until=1.0)

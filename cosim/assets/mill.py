@@ -25,9 +25,9 @@ from __future__ import annotations
 import numpy as np
 
 from cosim.assets import EVENT_FIELDS, Asset, AssetSensors, Plant
-from cosim.comminution import mill_step
+from cosim.comminution import METHODS, mill_step
 from cosim.kinds import AssetKind
-from cosim.params import FmuAssetParameters, Position, Text, number
+from cosim.params import FmuAssetParameters, Position, Text, choice, number
 from cosim.master import CosimulationError
 from cosim.numerics import weighted_column_sums
 
@@ -175,6 +175,10 @@ class MillParameters(FmuAssetParameters):
     product_threshold_kg: number(0.0, 1e3, low_open=True, unit="kg") = 0.01
     product_event_interval_s: number(0.0, 1e5, low_open=True, unit="s") = 60.0
     update_interval_s: number(0.0, 60.0, unit="s") = 0.0
+    integrator: choice(*METHODS) = "exponential"
+    """The population balance's integrator (``cosim.comminution``): "exponential"
+    (stable for any step), "explicit" (the paper's; unstable above its limit) or
+    "auto" (the explicit update only where it is safely stable)."""
 
 
 class MillKind(AssetKind):
@@ -192,7 +196,7 @@ class MillKind(AssetKind):
                     product_threshold=p.product_threshold_kg,
                     product_event_interval=p.product_event_interval_s,
                     update_interval=p.update_interval_s, sensor_window=sim["sensor_window_s"],
-                    sensor_interval=sim["record_every_s"])
+                    sensor_interval=sim["record_every_s"], method=p.integrator)
         physics = FmuComponent(resolve_fmu(p.fmu), interface=MILL_INTERFACE,
                                name=f"{name}_fmu", parameters=p.parameters)
         physics.set_input("speed_setpoint", p.speed_rad_s)
