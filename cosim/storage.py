@@ -112,6 +112,22 @@ class StorageModel:
         """Ids of the particles held, in the model's order of leaving."""
         raise NotImplementedError
 
+    @property
+    def feeder_credit_kg(self) -> float:
+        """Mass [kg] the feeder is owed: commanded but not yet drawn as whole particles."""
+        return self._credit_kg
+
+    def adopt(self, ids, t: float, *, positions=None, credit_kg: float = 0.0) -> None:
+        """Take over, at time ``t`` [s], a pile another storage model held (a
+        hand-over along the fidelity ladder, ``cosim.handover``): ``ids`` in that
+        model's order of leaving, their x-y ``positions`` [m] if it had geometry
+        (None otherwise), and the feeder's mass credit [kg], which carries over
+        so that the outflow stays exact. The particles are already owned by this
+        storage. By default they are received in that order (a queue keeps it;
+        perfect mixing draws their clocks); a model with geometry places them."""
+        self.receive(ids, t)
+        self._credit_kg = float(credit_kg)
+
     def held_mass(self) -> float:
         """Mass held [kg]."""
         return self.particles.total_mass(self.owner)

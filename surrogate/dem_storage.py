@@ -93,6 +93,39 @@ class DemStorage(StorageModel):
                       np.asarray(tracking).astype(np.uint64), inlet=self.inlet, ids=ids)
         self.sync()
 
+    @property
+    def feeder_credit_kg(self) -> float:
+        return float(self.dem.credits[self.outlet])
+
+    def adopt(self, ids, t: float, *, positions=None, credit_kg: float = 0.0) -> None:
+        """A hand-over (``StorageModel.adopt``): with positions (in the DEM's
+        frame: floor y = 0 centred on x = 0) the disks are dropped to rest in the
+        pile's height order (``surrogate.rom.handover.drop_heights``, no deep
+        overlaps); without, they are emitted at the inlet. The DEM's clock
+        starts at ``t``."""
+        from surrogate.rom.handover import drop_heights
+
+        ids = np.asarray(ids, dtype=np.uint64).ravel()
+        if positions is None or ids.size == 0:
+            self.dem.time = max(self.dem.time, float(t))
+            self.receive(ids, t)
+        else:
+            slots = self.particles.slots(ids)
+            mass = self.particles.mass[slots]
+            cfg = self.dem.cfg
+            half = 0.5 * cfg.floor_width
+            at_rest = drop_heights(np.asarray(positions, dtype=np.float64).reshape(-1, 2),
+                                   0.5 * cfg.diameter_of_mass(mass), 0.0, -half, half)
+            names = self.particles.attribute_names
+            tracking = (self.particles.attribute("tracking_id")[slots] if "tracking_id" in names
+                        else ids)
+            self.dem.time = float(t)
+            self.dem.place(at_rest, mass, self.particles.grade[slots],
+                           self.particles.hardness[slots], self.particles.f[slots],
+                           np.asarray(tracking).astype(np.uint64), ids=ids)
+            self.sync()
+        self.dem.credits[self.outlet] = float(credit_kg)
+
     def held_ids(self) -> np.ndarray:
         """Held ids in the predicted order of leaving (funnel distance)."""
         return self.dem.id[self._funnel_order()]

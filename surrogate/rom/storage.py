@@ -234,6 +234,16 @@ class RomStorage(StorageModel):
             self._append(ids, mass, deposit(self.container, self._width, heights, mass,
                                             self.rng, landing_x=position[:, 0]))
 
+    def adopt(self, ids, t: float, *, positions=None, credit_kg: float = 0.0) -> None:
+        """A hand-over (``StorageModel.adopt``): with positions (from a DEM or
+        another ROM, in this container's frame) the pile is placed as it lay;
+        without, received at the inlet."""
+        if positions is None:
+            self.receive(ids, t)
+        else:
+            self.place(ids, positions)
+        self._credit_kg = float(credit_kg)
+
     def place(self, ids, position) -> None:
         """Particles already resting in the pile at ``position`` (N, 2) [m] (initial state)."""
         if self.dem_storage is not None:
