@@ -393,6 +393,8 @@ def run_batch(tasks: list[Task], executor: Executor, *, store=None, version: str
                     record.update(status="done", value=jsonio.plain(result["value"]),
                                   code_version=result["code_version"],
                                   wall_s=result["wall_s"], host=result["host"])
+                # as the store reads it back: a restarted batch's records equal a fresh one's
+                record = json.loads(jsonio.dumps(record, sort_keys=True))
                 records[index] = record
                 if store is not None:
                     _write_record(store / "records" / f"{key}.json", record)
