@@ -9,7 +9,9 @@ memory), stopped by ending exactly the processes they started.
 * A plant sweep with a deliberately failing run (an ore body of 0.5 m is
   exhausted by the first load): recorded as failed with its error, the rest
   completes; locally the sweep is interrupted with Ctrl-C after its first run
-  and restarted (it skips the stored run); every time series and summary
+  and restarted (it skips the stored run), and one process of the local pool
+  is killed mid-run (the pool is replaced and its runs run again); every time
+  series and summary
   number (not the wall times) equals the Ray sweep's bit for bit.
 """
 
@@ -101,16 +103,27 @@ def test_a_dem_design_on_ray_with_a_killed_worker_equals_the_local_one(cluster, 
     _assert_same_arrays(_arrays(local / "states"), _arrays(remote / "states"))
 
 
-def _sweep(out: Path, *options: str, wait_for_one: bool = False) -> int:
+def _children(pid: int) -> list[int]:
+    children = Path(f"/proc/{pid}/task/{pid}/children")
+    return [int(c) for c in children.read_text().split()] if children.exists() else []
+
+
+def _sweep(out: Path, *options: str, wait_for_one: bool = False,
+           kill_a_worker: bool = False) -> tuple[int, str]:
     command = [sys.executable, "-m", "minetwin.cli", "sweep", *SWEEP, "--out", str(out),
                *options]
     process = subprocess.Popen(command, cwd=ROOT, stderr=subprocess.PIPE, text=True,
                                start_new_session=True)
+    deadline = time.monotonic() + 300
     if wait_for_one:  # Ctrl-C once the first run is stored
-        deadline = time.monotonic() + 300
         while not list((out / "records").glob("*.json")) and time.monotonic() < deadline:
             time.sleep(0.2)
         os.killpg(process.pid, signal.SIGINT)
+    if kill_a_worker:  # SIGKILL one process of the local pool while the runs are under way
+        while not _children(process.pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(2.0)  # into the runs (each takes several seconds here)
+        os.kill(_children(process.pid)[0], signal.SIGKILL)
     _, err = process.communicate(timeout=600)
     return process.returncode, err
 
@@ -125,9 +138,10 @@ def test_a_sweep_with_a_failing_run_on_ray_equals_the_local_one_interrupted(clus
     assert code == 130, err
     first = {p.name: p.read_text() for p in (local / "records").glob("*.json")}
     assert len(first) == 1
-    code, err = _sweep(local, "--workers", "2")
+    code, err = _sweep(local, "--workers", "2", kill_a_worker=True)
     assert code == 1, err  # a run failed
     assert "1 already stored" in err
+    assert "worker process died" in err and "run again" in err
     assert {n: (local / "records" / n).read_text() for n in first} == first  # not rerun
     code, err = _sweep(remote, "--executor", "ray", "--address", cluster.address)
     assert code == 1, err
