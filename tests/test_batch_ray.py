@@ -33,7 +33,7 @@ import pytest
 from cosim import batch
 from surrogate.rom import paper_design
 
-pytest.importorskip("ray")
+# Ray is in the test extras: without it these tests fail, they do not skip
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[1]
