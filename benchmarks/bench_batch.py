@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -78,7 +79,9 @@ def main(argv=None) -> int:
     pile = Path(tempfile.mkdtemp(prefix="bench_batch_pile_"))
     result = {"design": {"runs": args.runs, "run_duration_s": design.runs[0].duration,
                          "particles": design.piles[0].particles},
-              "empty_tasks": args.empty, "scaling": {}, "overhead_s_per_task": {}}
+              "empty_tasks": args.empty, "scaling": {}, "overhead_s_per_task": {},
+              # a shared machine: other work competes for the cores the workers need
+              "load_average_1min_start": os.getloadavg()[0]}
     try:
         print("bench_batch: building the base pile", file=sys.stderr, flush=True)
         # a 1 s run of another seed builds the pile and compiles the DEM kernels in this
@@ -109,6 +112,7 @@ def main(argv=None) -> int:
             ray.shutdown()
     finally:
         shutil.rmtree(pile, ignore_errors=True)
+    result["load_average_1min_end"] = os.getloadavg()[0]
     print(json.dumps(result, indent=1, allow_nan=False))
     return 0
 

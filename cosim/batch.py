@@ -214,8 +214,9 @@ class LocalExecutor(Executor):
         return self._pool
 
     def share(self, common):
+        if common is not self.common:  # the workers got the old one when they started
+            self._drop_pool()
         super().share(common)
-        self._drop_pool()
 
     def submit(self, function, kwargs):
         if self.workers == 1:
