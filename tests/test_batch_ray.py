@@ -11,8 +11,8 @@ memory), stopped by ending exactly the processes they started.
   completes; locally the sweep is interrupted with Ctrl-C after its first run
   and restarted (it skips the stored run), and one process of the local pool
   is killed mid-run (the pool is replaced and its runs run again); every time
-  series and summary
-  number (not the wall times) equals the Ray sweep's bit for bit.
+  series and summary number (not the wall times) equals the Ray sweep's bit
+  for bit.
 """
 
 from __future__ import annotations
@@ -162,3 +162,4 @@ def test_a_sweep_with_a_failing_run_on_ray_equals_the_local_one_interrupted(clus
         series = [pd.read_parquet(folder / "runs" / key / "timeseries.parquet")
                   for folder in (local, remote)]
         pd.testing.assert_frame_equal(series[0], series[1], check_exact=True)
+
