@@ -80,8 +80,8 @@ def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
                dt_ladder_scenarios=(doe.HELDOUT.name,), executor=None) -> Path:
     """Run the DOE and the held-out DEM runs into ``directory``; runs already
     on disk are kept. Independent DEM runs go to ``executor`` (``cosim.batch``;
-    default: ``workers`` local processes). The
-    held-out scenarios named in ``dt_ladder_scenarios`` also run the DEM at
+    default: ``workers`` local processes). The held-out scenarios named in
+    ``dt_ladder_scenarios`` also run the DEM at
     ``reference_dt_factors`` times its stable step (``dem_dt<factor>.npz``;
     forced steps, stopped and marked when they blow up)."""
     from surrogate.dem import Dem
@@ -105,8 +105,8 @@ def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
     fills = first + sorted({s.fill for s in doe.HELDOUT_SCENARIOS} - set(first))
     piles = {fill: directory / "piles" / f"fill_{fill:.0f}.npz" for fill in fills}
     batch.run_calls([(_build_pile_file, {"cfg": cfg, "fill": fill, "seed": seed + k,
-                                       "path": piles[fill], "progress": progress})
-                  for k, fill in enumerate(fills) if not piles[fill].exists()], executor)
+                                         "path": piles[fill], "progress": progress})
+                     for k, fill in enumerate(fills) if not piles[fill].exists()], executor)
     container = doe.container_of(cfg, *training_pile_properties(
         [piles[fill] for fill in sorted({s.fill for s in scenarios})], grid))
     doe.write_meta(directory, cfg, grid, container,

@@ -727,10 +727,12 @@ def run_design(design: Design, work, data=None, workers: int = 2, progress=_stde
                executor=None) -> dict:
     """Run every pile and run of ``design`` not yet done on ``executor``
     (``cosim.batch``; default: ``workers`` local processes), most valuable
-    first (``Design.runs`` order) as soon as their start states exist; write ``work/manifest.json``. Runs whose result is in
-    ``work`` or in the data folder ``data`` are skipped, interrupted runs
-    resume from their latest checkpoint, a run that blows up is recorded and
-    the others go on. Returns the manifest."""
+    first (``Design.runs`` order) as soon as their start states exist; write
+    ``work/manifest.json``. Runs whose result is in ``work`` or in the data
+    folder ``data`` are skipped, interrupted runs resume from their latest
+    checkpoint (also a run whose worker died, run again at most
+    ``executor.retries`` times), a run that blows up or raises is recorded
+    and the others go on. Returns the manifest."""
     work = Path(work)
     work.mkdir(parents=True, exist_ok=True)
     # the code and commit the workers (forked) run with: nothing edited later is loaded
