@@ -46,8 +46,13 @@ class RayExecutor(batch.Executor):
             raise ValidationError("--address", f"host:port of a Ray cluster's head (or set "
                                   f"{ADDRESS_VARIABLE}) with --executor ray")
         if not ray.is_initialized():
-            # the workers' output stays in the nodes' session logs: one progress display
-            ray.init(address=self.address, log_to_driver=False, configure_logging=False)
+            try:
+                # the workers' output stays in the nodes' session logs: one progress display
+                ray.init(address=self.address, log_to_driver=False, configure_logging=False)
+            except (ConnectionError, RuntimeError, ValueError) as exc:
+                raise ValidationError("--address", "the address of a running Ray cluster's "
+                                      "head (ray start --head)",
+                                      f"{self.address}: {exc}") from None
         if workers is None:
             workers = max(int(ray.cluster_resources().get("CPU", 1)), 1)
         super().__init__(workers, retries)
