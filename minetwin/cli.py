@@ -17,6 +17,7 @@ from cosim.errors import ValidationError
 COMMAND_MODULES = (
     "minetwin.commands.simulate",
     "minetwin.commands.reproduce",
+    "minetwin.commands.sweep",
     "minetwin.commands.integration",
     "minetwin.commands.serve",
     "minetwin.commands.stockpile",

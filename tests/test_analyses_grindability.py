@@ -171,3 +171,22 @@ def test_sensitivity_degrades_with_location_error():
         sensitivity.grindability_sensitivity(
             signals, feed, product, x, start=0.0, block_length=10.0, n_blocks=10,
             block_mass=mass, block_hardness=hard, dxs=[-1.0], seeds=[1])
+
+
+def test_sensitivity_points_on_a_process_pool_equal_the_serial_sweep():
+    """The sweep's points as a batch (cosim.batch) on 2 processes: the same frame,
+    row for row and bit for bit, as one after the other in this process."""
+    from cosim import batch
+
+    signals, feed, product, x, table = mill_scene(0, loads=10)
+    _, mass, hard = block_setup(table, x)
+    options = dict(start=0.0, block_length=10.0, n_blocks=10, block_mass=mass,
+                   block_hardness=hard, dxs=[0.0, 12.5, 25.0], seeds=[1, 2])
+    serial = sensitivity.grindability_sensitivity(signals, feed, product, x, **options)
+    with batch.LocalExecutor(2) as executor:
+        pooled = sensitivity.grindability_sensitivity(signals, feed, product, x,
+                                                      executor=executor, **options)
+    assert list(zip(serial.dx, serial.seed)) == [(d, s) for d in (0.0, 12.5, 25.0)
+                                                 for s in (1, 2)]
+    pd.testing.assert_frame_equal(serial, pooled, check_exact=True)
+    assert serial.attrs["failed"] == pooled.attrs["failed"] == []

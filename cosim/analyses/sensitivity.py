@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from cosim import jsonio
+from cosim import batch, jsonio
 from cosim.analyses import grindability, mwd
 from cosim.errors import ValidationError
 
@@ -48,9 +48,39 @@ def _check_sweep(dxs, seeds) -> tuple[np.ndarray, list[int]]:
     return dxs, seeds
 
 
+def _mwd_point(*, dx: float, seed: int, times, torque, stays, origins, beta_true: float,
+               fit_scale: bool, k_cr) -> dict:
+    """beta_fit for one (dx, seed) of the sweep (one task of its batch)."""
+    rng = np.random.default_rng(seed)
+    signals = [profile(perturbed_origins(x, dx, rng).to_numpy()) ** beta_true
+               for x, profile in origins.values()]
+    index = np.concatenate([x.index.to_numpy() for x, _ in origins.values()])
+    survey = pd.Series(np.concatenate(signals), index=index)
+    fit = mwd.fit_mwd_exponent(times, torque, stays, survey, fit_scale=fit_scale, k_cr=k_cr)
+    return {"beta_fit": fit.beta, "beta_error": abs(fit.beta - beta_true)}
+
+
+def _sweep(point, common: dict, dxs, seeds, executor, label: str) -> tuple[pd.DataFrame, list]:
+    """Rows (dx, seed, point's values) of the finished points, in sweep order, and
+    the failed points (``cosim.batch.summary``)."""
+    tasks = [batch.Task(f"dx={dx:g} m, seed {seed}", point, {"dx": float(dx)}, seed=seed)
+             for dx in dxs for seed in seeds]
+    own = executor is None
+    executor = batch.LocalExecutor(1) if own else executor
+    try:
+        records = batch.run_batch(tasks, executor, common=common, label=label,
+                                  progress=not own)
+    finally:
+        if own:
+            executor.close()
+    rows = [{"dx": r["inputs"]["dx"], "seed": r["seed"], **r["value"]}
+            for r in records if r["status"] == "done"]
+    return pd.DataFrame(rows), batch.summary(records)["failed"]
+
+
 def mwd_sensitivity(times, torque, stays: pd.DataFrame, origins: dict, *, dxs, seeds,
                     beta_true: float = 0.4, fit_scale: bool = False,
-                    k_cr=None) -> pd.DataFrame:
+                    k_cr=None, executor=None) -> pd.DataFrame:
     """beta_fit against the location error dx.
 
     Parameters
@@ -69,29 +99,41 @@ def mwd_sensitivity(times, torque, stays: pd.DataFrame, origins: dict, *, dxs, s
         Exponent of the true relation s = h**beta_true.
     fit_scale, k_cr :
         As in ``mwd.fit_mwd_exponent``.
+    executor : cosim.batch.Executor or None
+        Runs the points (default: one after the other in this process).
 
-    Returns a DataFrame with ``dx``, ``seed``, ``beta_fit`` and ``beta_error``.
+    Returns a DataFrame with ``dx``, ``seed``, ``beta_fit`` and ``beta_error``
+    (``attrs["failed"]``: the points that raised, left out).
     """
     dxs, seeds = _check_sweep(dxs, seeds)
-    rows = []
-    for dx in dxs:
-        for seed in seeds:
-            rng = np.random.default_rng(seed)
-            signals = [profile(perturbed_origins(x, dx, rng).to_numpy()) ** beta_true
-                       for x, profile in origins.values()]
-            index = np.concatenate([x.index.to_numpy() for x, _ in origins.values()])
-            survey = pd.Series(np.concatenate(signals), index=index)
-            fit = mwd.fit_mwd_exponent(times, torque, stays, survey, fit_scale=fit_scale,
-                                       k_cr=k_cr)
-            rows.append({"dx": float(dx), "seed": seed, "beta_fit": fit.beta,
-                         "beta_error": abs(fit.beta - beta_true)})
-    return pd.DataFrame(rows)
+    common = {"times": times, "torque": torque, "stays": stays, "origins": origins,
+              "beta_true": beta_true, "fit_scale": fit_scale, "k_cr": k_cr}
+    frame, failed = _sweep(_mwd_point, common, dxs, seeds, executor, "sensitivity: MWD")
+    frame.attrs["failed"] = failed
+    return frame
+
+
+def _final_grindability(origins: pd.Series, *, signals, feed, product, start, block_length,
+                        n_blocks, block_mass, window, alpha0) -> np.ndarray:
+    block_of = pd.Series(grindability.block_index(origins.to_numpy(), start, block_length,
+                                                  n_blocks), index=origins.index)
+    return grindability.backtrack(signals, feed, product, block_of, block_mass,
+                                  window=window, alpha0=alpha0)["final"]
+
+
+def _grindability_point(*, dx: float, seed: int, x: pd.Series, block_hardness, reference,
+                        **backtrack) -> dict:
+    """corr and rel_deviation for one (dx, seed) of the sweep (one task)."""
+    g = _final_grindability(perturbed_origins(x, dx, np.random.default_rng(seed)), **backtrack)
+    return {"corr": float(np.corrcoef(g, block_hardness)[0, 1]),
+            "rel_deviation": float(np.sqrt(np.mean((g / reference - 1.0) ** 2)))}
 
 
 def grindability_sensitivity(signals: pd.DataFrame, feed: pd.DataFrame, product: pd.DataFrame,
                              x: pd.Series, *, start: float, block_length: float,
                              n_blocks: int, block_mass, block_hardness, dxs, seeds,
-                             window: float = 30.0, alpha0: float = 0.1) -> pd.DataFrame:
+                             window: float = 30.0, alpha0: float = 0.1,
+                             executor=None) -> pd.DataFrame:
     """Block grindability against the location error dx.
 
     ``x`` holds the true origins [m] of the particles of the backtracked
@@ -101,26 +143,19 @@ def grindability_sensitivity(signals: pd.DataFrame, feed: pd.DataFrame, product:
     a blurred origin spreads a block's mass over its neighbours, so the
     weights alpha_i shrink with dx and a minimum-weight criterion would drop
     exactly the blocks the sweep is about) and ``rel_deviation`` (RMS of the
-    final block grindability relative to its unperturbed value).
+    final block grindability relative to its unperturbed value). The points
+    run on ``executor`` as in ``mwd_sensitivity``.
     """
     dxs, seeds = _check_sweep(dxs, seeds)
-    block_hardness = np.asarray(block_hardness, dtype=np.float64)
-
-    def final(origins: pd.Series) -> np.ndarray:
-        block_of = pd.Series(grindability.block_index(origins.to_numpy(), start, block_length,
-                                                      n_blocks), index=origins.index)
-        return grindability.backtrack(signals, feed, product, block_of, block_mass,
-                                      window=window, alpha0=alpha0)["final"]
-
-    reference = final(x)
-    rows = []
-    for dx in dxs:
-        for seed in seeds:
-            g = final(perturbed_origins(x, dx, np.random.default_rng(seed)))
-            corr = float(np.corrcoef(g, block_hardness)[0, 1])
-            rows.append({"dx": float(dx), "seed": seed, "corr": corr,
-                         "rel_deviation": float(np.sqrt(np.mean((g / reference - 1.0) ** 2)))})
-    return pd.DataFrame(rows)
+    backtrack = {"signals": signals, "feed": feed, "product": product, "start": start,
+                 "block_length": block_length, "n_blocks": n_blocks,
+                 "block_mass": block_mass, "window": window, "alpha0": alpha0}
+    common = {**backtrack, "x": x, "block_hardness": np.asarray(block_hardness, np.float64),
+              "reference": _final_grindability(x, **backtrack)}
+    frame, failed = _sweep(_grindability_point, common, dxs, seeds, executor,
+                           "sensitivity: grindability")
+    frame.attrs["failed"] = failed
+    return frame
 
 
 # ------------------------------------------------------------------ reproduce
@@ -140,9 +175,11 @@ def _spread(frame: pd.DataFrame, column: str) -> dict:
             for dx, m, s in zip(grouped.mean().index, grouped.mean(), grouped.std(ddof=0))}
 
 
-def analyse(run, *, dxs, seeds, window: float = 30.0) -> tuple[dict, pd.DataFrame,
-                                                                  pd.DataFrame]:
-    """Both sweeps on a ``profile_run.ProfileRun``; (summary, mwd sweep, grindability sweep)."""
+def analyse(run, *, dxs, seeds, window: float = 30.0,
+            executor=None) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
+    """Both sweeps on a ``profile_run.ProfileRun``, their points on ``executor``
+    (``cosim.batch``; default: in this process); (summary, mwd sweep,
+    grindability sweep)."""
     from cosim.analyses.profile_run import MWD_BETA
     from cosim.analyses.tracking import residence_intervals
 
@@ -152,7 +189,7 @@ def analyse(run, *, dxs, seeds, window: float = 30.0) -> tuple[dict, pd.DataFram
                for name in run.profiles}
     mwd_sweep = mwd_sensitivity(run.times, run.timeseries["crusher_fmu.torque"].to_numpy(),
                                 stays, origins, dxs=dxs, seeds=seeds, beta_true=MWD_BETA,
-                                k_cr=mwd.run_coefficients(run.config))
+                                k_cr=mwd.run_coefficients(run.config), executor=executor)
     signals, feed, product = grindability.mill_inputs(run, window)
     _, mass, hardness = grindability.left_blocks(
         run.particles, first_cell=grindability.profile_first_cell(run))
@@ -163,13 +200,14 @@ def analyse(run, *, dxs, seeds, window: float = 30.0) -> tuple[dict, pd.DataFram
         start=grindability.profile_first_cell(run) * grindability.BLOCK_LENGTH_M,
         block_length=grindability.BLOCK_LENGTH_M,
         n_blocks=n_blocks, block_mass=mass[:n_blocks], block_hardness=hardness[:n_blocks],
-        dxs=dxs, seeds=seeds, window=window, alpha0=grindability.ALPHA0)
+        dxs=dxs, seeds=seeds, window=window, alpha0=grindability.ALPHA0, executor=executor)
     summary = {"dxs_m": [float(d) for d in dxs], "seeds": [int(s) for s in seeds],
                "beta_fit": _spread(mwd_sweep, "beta_fit"),
                "beta_error": _spread(mwd_sweep, "beta_error"),
                "corr_grindability_vs_hardness": _spread(grind_sweep, "corr"),
                "block_grindability_rel_deviation": _spread(grind_sweep, "rel_deviation"),
-               "blocks": n_blocks}
+               "blocks": n_blocks,
+               "failed_points": mwd_sweep.attrs["failed"] + grind_sweep.attrs["failed"]}
     return summary, mwd_sweep, grind_sweep
 
 
@@ -199,8 +237,10 @@ def plot(mwd_sweep: pd.DataFrame, grind_sweep: pd.DataFrame, out, run: str | Non
     return [plotstyle.save(fig, Path(out) / "sensitivity.png")]
 
 
-def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int | None = None):
-    """One quadratic-profile run, then both sweeps; (summary, failed checks)."""
+def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int | None = None,
+              executor=None):
+    """One quadratic-profile run, then both sweeps (their points on ``executor``,
+    ``cosim.batch``; default: in this process); (summary, failed checks)."""
     import sys
 
     from cosim.analyses.profile_run import SCENARIO, output_folder, run_profile, scenario_config
@@ -214,7 +254,7 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
     if progress:
         print(f"sensitivity: {len(dxs)} location errors x {len(seeds)} seeds "
               "(beta refit and block reconciliation each)", file=sys.stderr, flush=True)
-    summary, mwd_sweep, grind_sweep = analyse(run, dxs=dxs, seeds=seeds)
+    summary, mwd_sweep, grind_sweep = analyse(run, dxs=dxs, seeds=seeds, executor=executor)
     mwd_sweep.to_csv(out / "mwd_sweep.csv", index=False)
     grind_sweep.to_csv(out / "grindability_sweep.csv", index=False)
     summary.update(quick=quick, simulated_s=until, seed=run.config["simulation"]["seed"],
@@ -223,7 +263,7 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
                        mwd_sweep, grind_sweep, out,
                        run_label(run.config, scenario=Path(SCENARIO).stem)
                        + f", seeds {list(seeds)} of the location error")])
-    failed = []
+    failed = [f"point {p['name']} failed: {p['error']}" for p in summary["failed_points"]]
     error = mwd_sweep.groupby("dx")["beta_error"].mean()
     if not error.iloc[0] <= 0.005:
         failed.append(f"beta error without location error {error.iloc[0]:.4f} > 0.005")

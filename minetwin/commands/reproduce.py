@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from cosim import jsonio
+from minetwin import executors
 
 REPRODUCTIONS: dict[str, str] = {
     "step-response": "cosim.analyses.step_response",
@@ -22,6 +23,10 @@ REPRODUCTIONS: dict[str, str] = {
     "sensitivity": "cosim.analyses.sensitivity",
 }
 """Reproducible results by name -> module path."""
+
+BATCHES = {"sensitivity"}
+"""The reproductions made of a batch of independent runs: their ``reproduce``
+also takes ``executor`` (``cosim.batch``), chosen with --executor/--workers."""
 
 
 def register(subparsers) -> None:
@@ -35,18 +40,30 @@ def register(subparsers) -> None:
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     parser.add_argument("--quick", action="store_true", help="shorter runs (for tests/CI)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    executors.add_options(parser, workers=1)
     parser.set_defaults(handler=run)
 
 
 def run(args) -> int:
+    from cosim.errors import ValidationError
     from cosim.master import CosimulationError
 
     module = importlib.import_module(REPRODUCTIONS[args.name])
+    options = {}
+    if args.name in BATCHES:
+        options["executor"] = executors.make(args)
+    elif args.executor != "local" or args.workers not in (None, 1):
+        raise ValidationError("--executor/--workers", f"left out for {args.name} (one run; "
+                              f"batches: {', '.join(sorted(BATCHES))})")
     try:
-        summary, failed = module.reproduce(args.out, quick=args.quick, progress=not args.quiet)
+        summary, failed = module.reproduce(args.out, quick=args.quick, progress=not args.quiet,
+                                           **options)
     except CosimulationError as exc:
         print(f"minetwin reproduce: run failed: {exc}", file=sys.stderr)
         return 1
+    finally:
+        if "executor" in options:
+            options["executor"].close()
     print(jsonio.dumps(summary, indent=2, sort_keys=True))
     print(args.out / "summary.json")
     for problem in failed:

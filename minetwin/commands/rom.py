@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 from cosim import jsonio
+from minetwin import executors
 
 
 def register(subparsers) -> None:
@@ -33,8 +34,7 @@ def register(subparsers) -> None:
     evaluate.add_argument("--out", help="output directory for summary.json (and the DOE "
                                         "with --quick); default: --data")
     evaluate.add_argument("--seed", type=int, default=0, help="seed of the design (0)")
-    evaluate.add_argument("--workers", type=int, default=2,
-                          help="processes running independent DEM runs of --quick (2)")
+    executors.add_options(evaluate, workers=2)
     evaluate.add_argument("--check", action="store_true",
                           help="exit 1 unless every target in summary.json 'targets' is met")
     evaluate.add_argument("--surface", choices=("dem", "rule"), default="dem",
@@ -58,7 +58,7 @@ def register(subparsers) -> None:
                         help="data folder of committed results: finished runs there are "
                              "skipped; --export writes there (default for the paper design: "
                              "the package's surrogate/rom/data/paper_design)")
-    design.add_argument("--workers", type=int, default=2, help="processes (2)")
+    executors.add_options(design, workers=2)
     design.add_argument("--plan", action="store_true",
                         help="print the runs, their keys and planned particle-steps; run nothing")
     design.add_argument("--rate", type=float, default=None,
@@ -111,9 +111,8 @@ def run_evaluate(args) -> int:
         if not args.out:
             raise ValidationError("--out", "a directory when --quick is given")
         data = Path(args.out)
-        if args.workers < 1:
-            raise ValidationError("--workers", ">= 1", f"got {args.workers}")
-        build_data(data, quick=True, seed=args.seed, progress=_progress, workers=args.workers)
+        with executors.make(args) as executor:
+            build_data(data, quick=True, seed=args.seed, progress=_progress, executor=executor)
         model = train(data, data / "rom_model.npz", args.mass_modes, args.velocity_modes,
                       args.ridge, progress=_progress)
         _progress(f"trained on {model.n_samples} samples; model {data / 'rom_model.npz'}")
@@ -157,8 +156,9 @@ def run_design(args) -> int:
     from surrogate.rom import paper_design
 
     design = paper_design.get_design(args.design)
-    if args.workers < 1:
+    if args.workers is not None and args.workers < 1:
         raise ValidationError("--workers", ">= 1", f"got {args.workers}")
+    workers = args.default_workers if args.workers is None else args.workers
     data = Path(args.data) if args.data else (paper_design.DATA_DIR if design.name == "paper"
                                               else None)
     if args.plan:
@@ -169,7 +169,7 @@ def run_design(args) -> int:
         if args.rate:
             if not args.rate > 0:
                 raise ValidationError("--rate", "> 0 particle-steps/s", f"got {args.rate}")
-            plan["planned_hours_on_workers"] = total / args.rate / args.workers / 3600.0
+            plan["planned_hours_on_workers"] = total / args.rate / workers / 3600.0
         print(json.dumps(plan, indent=1, allow_nan=False))
         return 0
     if args.status:
@@ -187,7 +187,8 @@ def run_design(args) -> int:
         print(f"exported {manifest['runs_done']} of {manifest['runs_total']} runs "
               f"({manifest['bytes'] / 1e6:.1f} MB) to {data}", file=sys.stderr)
         return 0
-    manifest = paper_design.run_design(design, args.work, data, workers=args.workers)
+    with executors.make(args) as executor:
+        manifest = paper_design.run_design(design, args.work, data, executor=executor)
     done = sum(r["status"] == "done" for r in manifest["runs_finished"])
     print(f"design {design.name}: {done} of {len(design.runs)} runs finished in {args.work}",
           file=sys.stderr)

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cosim import batch
 from cosim.particles import ParticleStore
 from cosim.storage import make_storage
 from surrogate.rom import doe, metrics
@@ -55,20 +56,6 @@ def _say(progress, message):
 
 
 # ----------------------------------------------------------------- data
-def _in_parallel(jobs: list, workers: int) -> None:
-    """Run ``(function, *args)`` jobs, up to ``workers`` processes at once (each
-    DEM run is single-threaded; the results are files, so order does not matter)."""
-    if workers <= 1 or len(jobs) <= 1:
-        for function, *args in jobs:
-            function(*args)
-        return
-    from concurrent.futures import ProcessPoolExecutor
-
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
-        for future in [pool.submit(function, *args) for function, *args in jobs]:
-            future.result()
-
-
 def _build_pile_file(cfg, fill: float, seed: int, path: Path, progress) -> None:
     _say(progress, f"DEM: building a {fill / 1e3:.0f} t pile")
     dem, _ = doe.build_pile(cfg, fill, seed)
@@ -90,14 +77,19 @@ def _run_training(directory: Path, scenario, first_tracking_id: int, seed: int, 
 
 def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
                reference_dt_factors=(), workers: int = 2,
-               dt_ladder_scenarios=(doe.HELDOUT.name,)) -> Path:
+               dt_ladder_scenarios=(doe.HELDOUT.name,), executor=None) -> Path:
     """Run the DOE and the held-out DEM runs into ``directory``; runs already
-    on disk are kept. Independent DEM runs go to ``workers`` processes. The
-    held-out scenarios named in ``dt_ladder_scenarios`` also run the DEM at
+    on disk are kept. Independent DEM runs go to ``executor`` (``cosim.batch``;
+    default: ``workers`` local processes). The held-out scenarios named in
+    ``dt_ladder_scenarios`` also run the DEM at
     ``reference_dt_factors`` times its stable step (``dem_dt<factor>.npz``;
     forced steps, stopped and marked when they blow up)."""
     from surrogate.dem import Dem
 
+    if executor is None:
+        with batch.LocalExecutor(workers) as executor:
+            return build_data(directory, quick, seed, progress, reference_dt_factors,
+                              dt_ladder_scenarios=dt_ladder_scenarios, executor=executor)
     directory = Path(directory)
     if (directory / "doe.json").is_file() and doe.read_meta(directory).get("quick") and not quick:
         _say(progress, f"{directory} holds the quick design: growing it to the full design "
@@ -112,8 +104,9 @@ def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
     first = sorted({s.fill for s in scenarios} | {doe.HELDOUT.fill})
     fills = first + sorted({s.fill for s in doe.HELDOUT_SCENARIOS} - set(first))
     piles = {fill: directory / "piles" / f"fill_{fill:.0f}.npz" for fill in fills}
-    _in_parallel([(_build_pile_file, cfg, fill, seed + k, piles[fill], progress)
-                  for k, fill in enumerate(fills) if not piles[fill].exists()], workers)
+    batch.run_calls([(_build_pile_file, {"cfg": cfg, "fill": fill, "seed": seed + k,
+                                         "path": piles[fill], "progress": progress})
+                     for k, fill in enumerate(fills) if not piles[fill].exists()], executor)
     container = doe.container_of(cfg, *training_pile_properties(
         [piles[fill] for fill in sorted({s.fill for s in scenarios})], grid))
     doe.write_meta(directory, cfg, grid, container,
@@ -121,7 +114,9 @@ def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
                     "scenarios": [asdict(s) for s in scenarios],
                     "heldout": asdict(doe.HELDOUT),
                     "heldout_scenarios": [asdict(s) for s in doe.HELDOUT_SCENARIOS]})
-    jobs = [(_run_training, directory, s, 1000 + 100 * k, seed, grid, progress)
+    jobs = [(_run_training, {"directory": directory, "scenario": s,
+                             "first_tracking_id": 1000 + 100 * k, "seed": seed, "grid": grid,
+                             "progress": progress})
             for k, s in enumerate(scenarios)
             if not (directory / "train" / f"{s.name}.npz").exists()]
     for k, scenario in enumerate(doe.HELDOUT_SCENARIOS):
@@ -135,9 +130,11 @@ def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
         runs = [("dem", 0.0, 1.0), ("dem_perturbed", PERTURBATION, 1.0)]
         if scenario.name in dt_ladder_scenarios:  # the speed-vs-accuracy chart's DEM ladder
             runs += [(f"dem_dt{f:g}", 0.0, f) for f in reference_dt_factors]
-        jobs += [(_run_heldout_dem, heldout, name, grid, perturb, factor, seed, progress)
+        jobs += [(_run_heldout_dem, {"heldout": heldout, "name": name, "grid": grid,
+                                     "perturbation": perturb, "dt_factor": factor,
+                                     "seed": seed, "progress": progress})
                  for name, perturb, factor in runs if not (heldout / f"{name}.npz").exists()]
-    _in_parallel(jobs, workers)
+    batch.run_calls(jobs, executor)  # the results are files: order plays no part
     return directory
 
 

@@ -87,13 +87,11 @@ exported data folder trains with ``minetwin rom train --data DIR``.
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import json
 import math
 import os
 import shutil
-import subprocess
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -101,6 +99,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cosim import batch
 from surrogate.rom import doe
 from surrogate.rom.dispersion import dispersion_fit
 from surrogate.rom.grid import (Grid, displacement_velocity_field, mass_field,
@@ -304,22 +303,6 @@ def run_key(design: Design, run: RunSpec) -> str:
     spec = {k: v for k, v in asdict(run).items() if k not in ("name", "start")}
     return _digest({**_common(design), "kind": "run", "spec": spec,
                     "start": start_key(design, run.start)})
-
-
-@functools.lru_cache(maxsize=1)
-def git_commit() -> str:
-    """The source tree's git commit (``+dirty`` with uncommitted changes), or
-    ``unknown``; read once per process (``run_design`` reads it before its
-    workers start, so they record the code they were started with)."""
-    root = Path(__file__).resolve().parents[2]
-    try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True,
-                              text=True, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               cwd=root, capture_output=True, text=True, timeout=10).stdout
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return (head + ("+dirty" if dirty.strip() else "")) if head else "unknown"
 
 
 # ------------------------------------------------------------------ piles
@@ -580,7 +563,7 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
     record = {"kind": "run", "name": run.name, "key": key, "design": design.name,
               "design_version": DESIGN_VERSION, "spec": asdict(run),
               "start_key": start_key(design, run.start), "seed": run.seed,
-              "git_commit": git_commit(), "dem_config": design.config.to_dict(),
+              "git_commit": batch.code_version(), "dem_config": design.config.to_dict(),
               "grid": design.grid.to_dict(), "dt_s": dem.dt,
               "dt_over_tc": dem.dt / design.config.contact_time,
               "wall_s": state.wall, "cpu_s": state.cpu,
@@ -725,7 +708,7 @@ def _pile_job(design: Design, pile: PileSpec, work: Path) -> dict:
     tmp = states / f"{key}.npz.tmp"
     dem.save_checkpoint(tmp)
     os.replace(tmp, states / f"{key}.npz")
-    record.update(key=key, git_commit=git_commit(), design_version=DESIGN_VERSION)
+    record.update(key=key, git_commit=batch.code_version(), design_version=DESIGN_VERSION)
     _write_json(states / f"{key}.json", record)
     _stderr(f"pile {pile.name} ({key}): {record['particles']} disks, "
             f"{record['held_mass_kg'] / 1e3:.0f} t, wall {_duration(record['wall_s'])}")
@@ -740,18 +723,21 @@ def _stderr(message: str) -> None:
     print(f"{time.strftime('%H:%M:%S')} {message}", file=sys.stderr, flush=True)
 
 
-def run_design(design: Design, work, data=None, workers: int = 2, progress=_stderr) -> dict:
-    """Run every pile and run of ``design`` not yet done, in ``workers``
-    processes, most valuable first (``Design.runs`` order) as soon as their
-    start states exist; write ``work/manifest.json``. Runs whose result is in
-    ``work`` or in the data folder ``data`` are skipped, interrupted runs
-    resume from their latest checkpoint, a run that blows up is recorded and
-    the others go on. Returns the manifest."""
+def run_design(design: Design, work, data=None, workers: int = 2, progress=_stderr,
+               executor=None) -> dict:
+    """Run every pile and run of ``design`` not yet done on ``executor``
+    (``cosim.batch``; default: ``workers`` local processes), most valuable
+    first (``Design.runs`` order) as soon as their start states exist; write
+    ``work/manifest.json``. Runs whose result is in ``work`` or in the data
+    folder ``data`` are skipped, interrupted runs resume from their latest
+    checkpoint (also a run whose worker died, run again at most
+    ``executor.retries`` times), a run that blows up or raises is recorded
+    and the others go on. Returns the manifest."""
     work = Path(work)
     work.mkdir(parents=True, exist_ok=True)
     # the code and commit the workers (forked) run with: nothing edited later is loaded
     import surrogate.dem.builders  # noqa: F401
-    git_commit()
+    batch.code_version()
     _write_json(work / "design.json", design_description(design))
     cost = estimate(design)
     finished = {**committed_keys(data), **_load_records(work)}
@@ -804,16 +790,13 @@ def run_design(design: Design, work, data=None, workers: int = 2, progress=_stde
             return None  # blocked for good
         return _state_path(work, data, state_of(run.start))
 
-    pending, running = list(order), {}
-    pool = None
-    if workers > 1 and len(order) > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        pool = ProcessPoolExecutor(max_workers=workers)
+    pending, running, attempts = list(order), {}, {}
+    own = executor is None
+    executor = batch.LocalExecutor(workers) if own else executor
     try:
         while pending or running:
             for job in list(pending):
-                if len(running) >= max(workers, 1):
+                if len(running) >= executor.workers:
                     break
                 start_path = ready(job)
                 if start_path is None and job[0] == "run" and \
@@ -826,33 +809,33 @@ def run_design(design: Design, work, data=None, workers: int = 2, progress=_stde
                     continue
                 pending.remove(job)
                 if job[0] == "pile":
-                    args = (_pile_job, design, design.pile(job[1]), work)
+                    call = (_pile_job, {"design": design, "pile": design.pile(job[1]),
+                                        "work": work})
                 else:
-                    args = (_run_job, design, design.run(job[1]), work, start_path, data)
-                if pool is None:
-                    running[job] = args[0](*args[1:])
-                else:
-                    running[job] = pool.submit(*args)
+                    call = (_run_job, {"design": design, "run": design.run(job[1]),
+                                       "work": work, "start_path": start_path, "data": data})
+                attempts[job] = attempts.get(job, 0) + 1
+                running[executor.submit(*call)] = job
             if not running:
                 if pending:  # nothing can start: the missing start states will not come
                     _say(progress, f"blocked: {[name for _, name in pending]}")
                 break
-            if pool is None:
-                finished_jobs = {job: result for job, result in running.items()}
-            else:
-                from concurrent.futures import FIRST_COMPLETED, wait
-
-                while not wait(list(running.values()), timeout=STATUS_EVERY_S,
-                               return_when=FIRST_COMPLETED)[0]:
-                    now = spent + sum(_progress_of(design, work, job) * cost[job[1]]
-                                      for job in running)
-                    _say(progress, _status(design, now, total, time.perf_counter() - started,
-                                           len(order) - len(pending) - len(running),
-                                           len(order)))
-                finished_jobs = {job: _outcome(job, f, progress)
-                                 for job, f in running.items() if f.done()}
-            for job, record in finished_jobs.items():
-                del running[job]
+            while not (finished := executor.wait(list(running), timeout=STATUS_EVERY_S)):
+                now = spent + sum(_progress_of(design, work, job) * cost[job[1]]
+                                  for job in running.values())
+                _say(progress, _status(design, now, total, time.perf_counter() - started,
+                                       len(order) - len(pending) - len(running), len(order)))
+            for handle in finished:
+                job = running.pop(handle)
+                record = _outcome(job, executor, handle, progress)
+                if record is None:  # its worker died: run again, resuming its checkpoint
+                    if attempts[job] <= executor.retries:
+                        pending.insert(0, job)
+                        _say(progress, f"{job[0]} {job[1]}: its worker died; run again "
+                                       f"(attempt {attempts[job] + 1})")
+                        continue
+                    record = {"status": "error", "error": "its worker died "
+                                                          f"{attempts[job]} times"}
                 spent += cost[job[1]]
                 if job[0] == "run" and record.get("status") != "done":
                     failed.add(run_keys[job[1]])  # an error: retried by the next start
@@ -861,20 +844,26 @@ def run_design(design: Design, work, data=None, workers: int = 2, progress=_stde
                     len(order) - len(pending) - len(running), len(order)))
             write_manifest(design, work)
     finally:
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
+        if own:
+            executor.close()
     return write_manifest(design, work)
 
 
-def _outcome(job, future, progress) -> dict:
-    """A finished job's record; an exception (a bug, a killed worker) becomes a
-    record with status ``error`` so the other runs go on."""
+def _outcome(job, executor, handle, progress) -> dict | None:
+    """A finished job's record; an exception (a bug) becomes a record with
+    status ``error`` so the other runs go on; None when its worker died and
+    the executor does not run it again by itself."""
     try:
-        return future.result()
-    except Exception as exc:  # noqa: BLE001 - any failure of one run must not stop the rest
-        _say(progress, f"{job[0]} {job[1]}: ERROR {type(exc).__name__}: {exc}; the design "
-                       "goes on (the run is retried when the design is restarted)")
-        return {"status": "error", "error": f"{type(exc).__name__}: {exc}"}
+        return executor.outcome(handle)["value"]
+    except batch.WorkerLost as exc:
+        if not executor.retries_on_its_own:
+            return None
+        error = f"WorkerLost: {exc}"
+    except batch.TaskFailed as exc:
+        error = str(exc)
+    _say(progress, f"{job[0]} {job[1]}: ERROR {error}; the design goes on (the run is "
+                   "retried when the design is restarted)")
+    return {"status": "error", "error": error}
 
 
 def status(design: Design, work, data=None) -> list[dict]:

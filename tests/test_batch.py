@@ -1,0 +1,94 @@
+"""cosim.batch on the local executor: records in task order whatever the number of
+workers, a failing run recorded while the rest completes, a restarted batch
+skipping what its store holds, and the CLI's executor options refusing bad
+input. The Ray executor and killed workers: tests/test_batch_ray.py."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from cosim import batch
+from minetwin.commands.sweep import parse_setting
+
+# parse_setting is a real function of the project that refuses malformed input:
+# "no_equals_sign" is the deliberately failing run
+TEXTS = ["sources.left.grade=0.2,0.3", "no_equals_sign", "trucks.0.speed_m_s=6,8,10",
+         "stockpile.model=fifo,mixing"]
+
+
+def _tasks():
+    return [batch.Task(f"parse {k}", parse_setting, {"text": text})
+            for k, text in enumerate(TEXTS)]
+
+
+def _outcome(records):
+    return [(r["name"], r["key"], r["status"], r.get("value"), r.get("error")) for r in records]
+
+
+def test_records_in_task_order_with_any_number_of_workers_and_failures_recorded(capsys):
+    results = []
+    for workers in (1, 2):
+        with batch.LocalExecutor(workers) as executor:
+            results.append(batch.run_batch(_tasks(), executor))
+    assert _outcome(results[0]) == _outcome(results[1])
+    records = results[0]
+    assert [r["name"] for r in records] == [f"parse {k}" for k in range(len(TEXTS))]
+    assert records[0]["value"] == ["sources.left.grade", [0.2, 0.3]]
+    assert records[3]["value"] == ["stockpile.model", ["fifo", "mixing"]]
+    failed = records[1]
+    assert failed["status"] == "failed" and "ValidationError" in failed["error"]
+    assert "--set" in failed["error"]
+    for record in records:
+        assert record["inputs"] == {"text": TEXTS[int(record["name"].split()[-1])]}
+        assert record["function"] == "minetwin.commands.sweep:parse_setting"
+    assert all(r["code_version"] for r in records if r["status"] == "done")
+    assert batch.summary(records) == {"runs": 4, "done": 3, "failed": [
+        {"name": "parse 1", "key": failed["key"], "error": failed["error"]}]}
+    err = capsys.readouterr().err
+    assert "parse 1 FAILED" in err and "4/4 finished (3 done, 1 failed)" in err
+
+
+def test_a_restarted_batch_skips_the_runs_its_store_holds(tmp_path):
+    tasks = _tasks()
+    with batch.LocalExecutor(1) as executor:
+        first = batch.run_batch(tasks[:2], executor, store=tmp_path, progress=False)
+        stored = (tmp_path / "records" / f"{first[0]['key']}.json").read_text()
+        again = batch.run_batch(tasks, executor, store=tmp_path, progress=False)
+    # the done run comes from the store as it was (its wall time too); the failed one reruns
+    assert again[0] == json.loads(stored)
+    assert (tmp_path / "records" / f"{first[0]['key']}.json").read_text() == stored
+    assert again[1]["status"] == "failed" and again[2]["status"] == "done"
+    assert len(list((tmp_path / "records").glob("*.json"))) == len(tasks)
+
+
+def test_the_key_is_the_content_not_the_name_or_order():
+    a = batch.Task("one", parse_setting, {"text": "a=1"}, seed=3)
+    assert batch.task_key(a) == batch.task_key(batch.Task("other", parse_setting,
+                                                          {"text": "a=1"}, seed=3))
+    assert len({batch.task_key(a), batch.task_key(a, version="2"),
+                batch.task_key(batch.Task("one", parse_setting, {"text": "a=2"}, seed=3)),
+                batch.task_key(batch.Task("one", parse_setting, {"text": "a=1"}, seed=4))}) == 4
+    with pytest.raises(Exception, match="distinct runs"):
+        batch.run_batch([a, a], batch.LocalExecutor(1), progress=False)
+
+
+@pytest.mark.parametrize("options, field", [
+    (["--workers", "0"], "--workers"),
+    (["--executor", "ray"], "--address"),
+    (["--address", "127.0.0.1:1"], "--address"),
+    (["--seeds", "0"], "--seeds"),
+    (["--set", "sources.left.nothing=1,2"], "--set"),
+    (["--set", "sources.left.grade=2.5"], "--set"),
+])
+def test_sweep_refuses_bad_options_with_exit_code_2(tmp_path, options, field):
+    done = subprocess.run([sys.executable, "-m", "minetwin.cli", "sweep",
+                           "examples/step_response.toml", "--out", str(tmp_path / "out"),
+                           *options], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "MINETWIN_RAY_ADDRESS": ""})
+    assert done.returncode == 2, done.stderr
+    assert field in done.stderr and "Traceback" not in done.stderr

@@ -1,0 +1,165 @@
+"""Batches on a real Ray cluster: a head node and a worker node on 127.0.0.1, each
+started with ``ray start`` (its own processes, free ports, one CPU, bounded
+memory), stopped by ending exactly the processes they started.
+
+* The reduced DEM design on Ray, with one Ray worker killed (SIGKILL) while it
+  is in the middle of a run: Ray runs the task again, which resumes from the
+  run's checkpoint, and every result and end state equals the local
+  executor's bit for bit.
+* A plant sweep with a deliberately failing run (an ore body of 0.5 m is
+  exhausted by the first load): recorded as failed with its error, the rest
+  completes; locally the sweep is interrupted with Ctrl-C after its first run
+  and restarted (it skips the stored run), and one process of the local pool
+  is killed mid-run (the pool is replaced and its runs run again); every time
+  series and summary number (not the wall times) equals the Ray sweep's bit
+  for bit.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cosim import batch
+from surrogate.rom import paper_design
+
+# Ray is in the test extras: without it these tests fail, they do not skip
+pytestmark = pytest.mark.slow
+
+ROOT = Path(__file__).resolve().parents[1]
+SWEEP = ["examples/step_response.toml", "--set", "sources.left.length_m=300,0.5",
+         "--set", "trucks.0.start_s=0", "--seeds", "2", "--until", "10"]
+WALL_KEYS = {"wall_s", "realtime_factor", "host", "code_version", "folder"}
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    import ray
+
+    from minetwin.testing.ray_cluster import LocalRayCluster
+
+    with LocalRayCluster(workers=1, cpus_per_node=1) as running:
+        yield running
+        ray.shutdown()
+
+
+def _arrays(folder: Path) -> dict:
+    arrays = {}
+    for path in sorted(folder.glob("*.npz")):
+        with np.load(path, allow_pickle=False) as data:
+            arrays.update({f"{path.name}:{k}": data[k] for k in data.files})
+    return arrays
+
+
+def _assert_same_arrays(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys() and a
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+
+
+def test_a_dem_design_on_ray_with_a_killed_worker_equals_the_local_one(cluster, tmp_path):
+    from minetwin.ray_executor import RayExecutor
+
+    design = paper_design.reduced_design()
+    local, remote = tmp_path / "local", tmp_path / "ray"
+    with batch.LocalExecutor(1) as executor:
+        paper_design.run_design(design, local, executor=executor, progress=lambda m: None)
+    executor = RayExecutor(cluster.address, retries=2)
+    assert executor.workers == 2  # the head's CPU and the worker node's
+    outcome = {}
+    thread = threading.Thread(target=lambda: outcome.update(manifest=paper_design.run_design(
+        design, remote, executor=executor, progress=lambda m: None)))
+    thread.start()
+    killed = None
+    deadline = time.monotonic() + 300
+    while thread.is_alive() and killed is None and time.monotonic() < deadline:
+        # a run is past its first checkpoint: kill the worker process under it
+        if list((remote / "partial").glob("*/ckpt_*.run.npz")):
+            running = cluster.task_workers("call")
+            if running:
+                killed = running[0]
+                os.kill(killed, signal.SIGKILL)
+        time.sleep(0.2)
+    thread.join(timeout=600)
+    executor.close()
+    assert killed is not None, "no run was under way to kill"
+    manifest = outcome["manifest"]
+    assert {r["status"] for r in manifest["runs_finished"]} == {"done"}
+    records = [json.loads(p.read_text()) for p in sorted((remote / "runs").glob("*.json"))]
+    assert len(records) == len(design.runs)
+    # the killed run was run again from its checkpoint, not from scratch
+    assert any(r["resumed_at_s"] for r in records)
+    _assert_same_arrays(_arrays(local / "runs"), _arrays(remote / "runs"))
+    _assert_same_arrays(_arrays(local / "states"), _arrays(remote / "states"))
+
+
+def _children(pid: int) -> list[int]:
+    children = Path(f"/proc/{pid}/task/{pid}/children")
+    return [int(c) for c in children.read_text().split()] if children.exists() else []
+
+
+def _sweep(out: Path, *options: str, wait_for_one: bool = False,
+           kill_a_worker: bool = False) -> tuple[int, str]:
+    command = [sys.executable, "-m", "minetwin.cli", "sweep", *SWEEP, "--out", str(out),
+               *options]
+    process = subprocess.Popen(command, cwd=ROOT, stderr=subprocess.PIPE, text=True,
+                               start_new_session=True)
+    deadline = time.monotonic() + 300
+    if wait_for_one:  # Ctrl-C once the first run is stored
+        while not list((out / "records").glob("*.json")) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        os.killpg(process.pid, signal.SIGINT)
+    if kill_a_worker:  # SIGKILL one process of the local pool while the runs are under way
+        while not _children(process.pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(2.0)  # into the runs (each takes several seconds here)
+        os.kill(_children(process.pid)[0], signal.SIGKILL)
+    _, err = process.communicate(timeout=600)
+    return process.returncode, err
+
+
+def _without_wall_time(frame: pd.DataFrame) -> pd.DataFrame:
+    return frame.drop(columns=[c for c in frame.columns if c in WALL_KEYS])
+
+
+def test_a_sweep_with_a_failing_run_on_ray_equals_the_local_one_interrupted(cluster, tmp_path):
+    local, remote = tmp_path / "local", tmp_path / "ray"
+    code, err = _sweep(local, "--workers", "1", wait_for_one=True)
+    assert code == 130, err
+    first = {p.name: p.read_text() for p in (local / "records").glob("*.json")}
+    assert len(first) == 1
+    code, err = _sweep(local, "--workers", "2", kill_a_worker=True)
+    assert code == 1, err  # a run failed
+    assert "1 already stored" in err
+    assert "worker process died" in err and "run again" in err
+    assert {n: (local / "records" / n).read_text() for n in first} == first  # not rerun
+    code, err = _sweep(remote, "--executor", "ray", "--address", cluster.address)
+    assert code == 1, err
+    tables = [pd.read_parquet(folder / "summary.parquet") for folder in (local, remote)]
+    for frame in tables:
+        assert list(frame["status"]) == ["done", "done", "failed", "failed"]
+        assert list(frame["seed"]) == [1, 2, 1, 2]
+        assert list(frame["set.sources.left.length_m"]) == [300.0, 300.0, 0.5, 0.5]
+        assert frame["error"].iloc[2].startswith("CosimulationError")
+        assert "ore body exhausted" in frame["error"].iloc[2]
+        assert (frame["simulated_s"].iloc[:2] == 10.0).all()
+    pd.testing.assert_frame_equal(_without_wall_time(tables[0]), _without_wall_time(tables[1]),
+                                  check_exact=True)
+    sweep = json.loads((remote / "sweep.json").read_text())
+    assert sweep["done"] == 2 and [f["name"] for f in sweep["failed"]] == list(
+        tables[1]["name"].iloc[2:])
+    for key in tables[0]["key"]:
+        series = [pd.read_parquet(folder / "runs" / key / "timeseries.parquet")
+                  for folder in (local, remote)]
+        pd.testing.assert_frame_equal(series[0], series[1], check_exact=True)
+
