@@ -50,7 +50,7 @@ from pathlib import Path
 
 from cosim import jsonio
 from cosim.errors import ValidationError
-from cosim.progress import _duration
+from tqdm import tqdm
 
 RETRIES = 2
 """Default number of times a task whose worker died is run again."""
@@ -279,10 +279,10 @@ class BatchProgress:
         ran = finished - self.skipped
         parts = [f"{finished}/{self.total} finished ({self.done} done, {self.failed} failed"
                  + (f", {self.skipped} already stored" if self.skipped else "") + ")",
-                 f"{self.running} running", f"{_duration(elapsed)} elapsed"]
+                 f"{self.running} running", f"{tqdm.format_interval(elapsed)} elapsed"]
         left = self.total - finished
         if left and ran > 0:
-            parts.append(f"ETA {_duration(elapsed / ran * left)}")
+            parts.append(f"ETA {tqdm.format_interval(elapsed / ran * left)}")
         return f"{self.label}: " + ", ".join(parts)
 
     def update(self, *, force: bool = False, note: str = "") -> None:

@@ -316,3 +316,22 @@ def test_a_missing_start_state_reruns_the_parent_of_an_unfinished_run(reduced_ru
                 np.load(finished / "runs" / f"{key}.npz") as first:
             for name in first.files:
                 np.testing.assert_array_equal(again[name], first[name], err_msg=name)
+
+
+def test_the_committed_runs_keep_their_keys_as_dem_settings_are_added():
+    """Settings added to the DEM after the design began (the nonsmooth method, the
+    feeder's Beverloo bound, the guard, threads) leave the key of a run at their
+    defaults, so the committed runs stay done; a setting that changes the physics
+    changes every key."""
+    from surrogate.rom import paper_design as pd
+
+    design = pd.get_design("paper")
+    done = pd.committed_keys(pd.DATA_DIR)
+    assert len(done) >= 2
+    keys = {pd.run_key(design, run) for run in design.runs}
+    assert set(done) <= keys
+    for changes in ({"method": "nonsmooth"}, {"beverloo_c": 0.5}, {"friction": 0.3}):
+        other = dataclasses.replace(design, config=dataclasses.replace(design.config, **changes))
+        assert not {pd.run_key(other, run) for run in design.runs} & keys, changes
+    threads = dataclasses.replace(design, config=dataclasses.replace(design.config, threads=2))
+    assert {pd.run_key(threads, run) for run in design.runs} == keys

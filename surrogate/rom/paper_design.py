@@ -273,8 +273,28 @@ def _digest(payload: dict) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+SETTINGS_SINCE_VERSION_1 = ("beverloo_c", "beverloo_k", "method", "nonsmooth_dt",
+                            "solver_iterations", "solver_tolerance", "stabilization_steps",
+                            "impact_speed", "guard_speed_factor", "guard_energy_growth",
+                            "guard_overlap_ratio")
+"""DEM settings added after the design's runs began (the nonsmooth method, the
+feeder's Beverloo bound, the blow-up guard). They enter a key only when they
+differ from their defaults, with which a run is the explicit DEM it was before
+they existed (the paper's feeder rates stay far below the orifice's capacity;
+the guard only stops a run that blows up), so finished runs keep their keys."""
+UNKEYED_SETTINGS = ("threads",)
+"""Settings that do not change a result (the kernels are bitwise equal for any
+thread count)."""
+
+
+def _keyed_config(config) -> dict:
+    defaults = type(config)().to_dict()
+    return {k: v for k, v in config.to_dict().items() if k not in UNKEYED_SETTINGS
+            and (k not in SETTINGS_SINCE_VERSION_1 or v != defaults[k])}
+
+
 def _common(design: Design) -> dict:
-    return {"design_version": DESIGN_VERSION, "config": design.config.to_dict(),
+    return {"design_version": DESIGN_VERSION, "config": _keyed_config(design.config),
             "grid": design.grid.to_dict(), "control_step": doe.CONTROL_STEP,
             "velocity_window": doe.VELOCITY_WINDOW, "bulk_age": doe.BULK_AGE,
             "lot_mass": doe.LOT_MASS, "layout_angle": LAYOUT_ANGLE, "fill_rate": FILL_RATE}
