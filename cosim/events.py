@@ -43,10 +43,11 @@ class EventStoreError(CosimulationError):
 
     blames_component = False
 
-EVENT_TYPES = ("appear", "load", "dump", "enter", "exit", "pass", "product")
+EVENT_TYPES = ("appear", "load", "dump", "enter", "exit", "pass", "product", "switch")
 """Event types: material appears at a source, is loaded into or dumped from
-a vehicle, enters or exits an asset, passes a point (e.g. the jaw), or
-leaves the plant as product."""
+a vehicle, enters or exits an asset, passes a point (e.g. the jaw), leaves
+the plant as product, or is handed over from one storage model to another
+inside a stockpile (``cosim.handover``: the pile as it was handed over)."""
 
 PARTICLE_FIELDS = ("mass", "position", "grade", "hardness", "origin_block", "f")
 """Particle state recorded with each event (X_n of the paper, less velocity)."""

@@ -27,12 +27,26 @@ from cosim.fidelity import Ladder, OperatingPoint
 
 def hand_over(old, new, t: float) -> np.ndarray:
     """Move the pile of storage model ``old`` to ``new`` (not yet bound) at
-    ``t`` [s]; returns the ids handed over, in ``old``'s order of leaving."""
+    ``t`` [s]; returns the ids handed over, in ``old``'s order of leaving.
+
+    From a model with geometry the particles go over at their positions. From
+    one without (FIFO, mixing) to one with, they are laid out by their order
+    of leaving as the views draw such a pile (``cosim.stockpile_view.
+    schematic_layout``: the next to leave nearest the outlet at x = 0, in a
+    half disc holding the pile at ``new.bulk_areal_density()``), which the new
+    model then settles (the DEM drops them to rest)."""
+    from cosim.stockpile_view import schematic_layout
+
     ids = np.array(old.held_ids(), dtype=np.uint64)
     positions = None
+    new.bind(old.particles, old.owner)
     if old.has_geometry and ids.size:
         positions = old.particles.position[old.particles.slots(ids), :2].copy()
-    new.bind(old.particles, old.owner)
+    elif new.has_geometry and ids.size:
+        held = float(old.particles.mass[old.particles.slots(ids)].sum())
+        radius = np.sqrt(2.0 * held / (np.pi * new.bulk_areal_density()))
+        x, y, _, _ = schematic_layout(ids, held, 0.0, radius)
+        positions = np.column_stack((x, y))
     new.adopt(ids, t, positions=positions, credit_kg=old.feeder_credit_kg)
     return ids
 
@@ -48,17 +62,24 @@ class Switcher:
         ``build(model_name)`` -> a new, unbound storage model of that name.
     window_s : float
         Window of the tracking error the operating point is taken at [s] (30).
+    rungs : list of str, optional
+        The models from the cheapest up (default: the cards' order); a model's
+        rung is its index, the time series of which model ran.
     """
 
-    def __init__(self, ladder: Ladder, build, window_s: float = 30.0):
+    def __init__(self, ladder: Ladder, build, window_s: float = 30.0, rungs=None):
         self.ladder = ladder
         self.build = build
         self.window_s = float(window_s)
+        self.rungs = list(rungs) if rungs is not None else [c.model for c in ladder.cards]
         self.switches: list[dict] = []
 
     def update(self, t: float, model, discharge_rate: float):
         """The model to step at ``t`` [s]: ``model`` itself, or its successor
-        with the pile handed over."""
+        with the pile handed over. While the feeder stands still nothing leaves,
+        so there is no outflow to track and nothing to decide."""
+        if discharge_rate <= 0.0:
+            return model
         point = OperatingPoint(throughput_kg_s=float(discharge_rate),
                                held_mass_kg=float(model.held_mass()), window_s=self.window_s)
         switch = self.ladder.update(t, point, out_of_range=model.out_of_range_now)

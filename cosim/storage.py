@@ -112,6 +112,12 @@ class StorageModel:
         """Ids of the particles held, in the model's order of leaving."""
         raise NotImplementedError
 
+    def bulk_areal_density(self) -> float | None:
+        """Mass per area of the pile's x-y section [kg/m^2] for a model with
+        geometry (how densely a hand-over from a model without it lays the pile
+        out, ``cosim.handover``); None without geometry."""
+        return None
+
     @property
     def feeder_credit_kg(self) -> float:
         """Mass [kg] the feeder is owed: commanded but not yet drawn as whole particles."""

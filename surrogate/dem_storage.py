@@ -93,6 +93,15 @@ class DemStorage(StorageModel):
                       np.asarray(tracking).astype(np.uint64), inlet=self.inlet, ids=ids)
         self.sync()
 
+    PACKING = 0.82
+    """Area fraction of a settled pile of disks [-] (a random close packing in 2D)."""
+
+    def bulk_areal_density(self) -> float:
+        """``PACKING`` x the areal density of a disk of the mean diameter: a disk of
+        diameter d carries a sphere's mass, rho pi d^3 / 6, on pi d^2 / 4 of area."""
+        cfg = self.dem.cfg
+        return self.PACKING * cfg.density * 2.0 / 3.0 * cfg.mean_diameter
+
     @property
     def feeder_credit_kg(self) -> float:
         return float(self.dem.credits[self.outlet])

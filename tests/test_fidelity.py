@@ -235,3 +235,43 @@ def test_the_mill_integrator_auto_keeps_the_exponential_where_the_explicit_is_un
     raw["assets"]["mill"]["integrator"] = "implicit"
     with pytest.raises(ValidationError, match="assets.mill.integrator"):
         run_scenario(raw, until=1.0)
+
+
+def test_an_auto_stockpile_hands_over_up_the_ladder_when_its_card_stops_holding(tmp_path):
+    """The plant's pile (90 t at the start, fed faster than the feeder draws) runs
+    FIFO while FIFO's card holds (80-120 t here) and hands over to mixing when the
+    pile grows past it: a "switch" event with the whole pile, the model's rung in
+    the time series, the switch in summary.json, and the mass balance exact."""
+    import sqlite3
+
+    from cosim.fidelity import write_cards
+    from cosim.scenario import run_scenario
+
+    def rows(error, cost, masses):
+        return tuple(CardRow(q, m, 30.0, error, FLOOR, cost, f"q{q:g}_m{m:g}")
+                     for q in (100.0, 1000.0) for m in masses)
+
+    cards = [FidelityCard("fifo", rows(0.3, 1e-4, (80e3, 120e3))),
+             FidelityCard("mixing", rows(0.2, 2e-4, (1e3, 1e7))),
+             FidelityCard("dem", rows(FLOOR, 10.0, (1e3, 1e7)))]
+    path = write_cards(tmp_path / "cards.json", cards)
+    raw = _auto_plant(tmp_path, {"accuracy": {"tracking_error": 0.35}, "cards": str(path)})
+    simulation, summary = run_scenario(raw, tmp_path / "out", until=400.0)
+    switches = summary["fidelity"]["stockpile"]["switches"]
+    assert summary["fidelity"]["stockpile"]["model"] == "fifo"  # the choice at the start
+    assert [(s["from_model"], s["to_model"]) for s in switches] == [("fifo", "mixing")]
+    switch = switches[0]
+    assert switch["held_mass_kg"] > 120e3 and "range of its card" in switch["reason"]
+    rung = simulation.timeseries["stockpile.model_rung"]
+    time = simulation.timeseries.index.to_numpy() if "time" not in simulation.timeseries \
+        else simulation.timeseries["time"].to_numpy()
+    assert set(rung.unique()) == {0.0, 1.0} and rung.is_monotonic_increasing
+    assert summary["mass_balance_rel_error"] < 1e-12
+    with sqlite3.connect(tmp_path / "out" / "events.sqlite") as db:
+        (event_id, at, count), = db.execute(
+            "SELECT event_id, time, n_particles FROM events WHERE type = 'switch'").fetchall()
+        handed = db.execute("SELECT SUM(mass) FROM event_particles WHERE event_id = ?",
+                            (event_id,)).fetchone()[0]
+    assert at == pytest.approx(switch["time_s"]) and count == switch["particles"] > 0
+    assert handed == pytest.approx(switch["held_mass_kg"], rel=1e-12)
+    assert time.size == rung.size

@@ -24,6 +24,8 @@ step.
 
 from __future__ import annotations
 
+import sys
+
 import numba
 import numpy as np
 from pydantic import model_validator
@@ -72,7 +74,7 @@ class Stockpile(Asset):
 
     def __init__(self, name: str, plant: Plant, *, model: StorageModel, inlets: dict,
                  outlets: dict, capacity: float = 2.0e6, sensor_window: float = 30.0,
-                 sensor_interval: float = 0.0):
+                 sensor_interval: float = 0.0, switcher=None):
         if not inlets or not outlets:
             raise ValidationError(f"{name}.inlets", "at least one inlet and one outlet")
         locations = {inlet: tuple(float(c) for c in where) for inlet, where in inlets.items()}
@@ -86,6 +88,7 @@ class Stockpile(Asset):
         self._rate_inputs = tuple(zip(self.outlets, self.input_names))
         self.model = model.bind(plant.particles, self.owner)
         self.fidelity = None  # the choice of a model = "auto" stockpile (cosim.fidelity)
+        self.switcher = switcher
         self.capacity = float(capacity)
         self._schedules = {}
         for outlet, (_, discharge) in outlets.items():
@@ -108,7 +111,8 @@ class Stockpile(Asset):
         self.output_names = ("mass_kg", "discharge_rate_kg_s", "discharged_kg", "inlet_open",
                              *AssetSensors.names,
                              *(f"{key}_{outlet}" for outlet in self.outlets if several
-                               for key in ("discharge_rate_kg_s", "discharged_kg")))
+                               for key in ("discharge_rate_kg_s", "discharged_kg")),
+                             *(("model_rung",) if switcher is not None else ()))
 
     def scheduled_rate(self, t: float, outlet: str | None = None) -> float:
         """Feeder rate of ``outlet``'s schedule at time ``t`` [kg/s]; without ``outlet``,
@@ -131,6 +135,8 @@ class Stockpile(Asset):
             self._rates[outlet] = rate
             total += rate
         self._rate_kg_s = total
+        if self.switcher is not None:
+            self._switch(t, total)
         leaving = self.model.step(t, dt, total)
         store = self.particles
         if not self._several:
@@ -148,6 +154,17 @@ class Stockpile(Asset):
             if self.model.held_ids().size == 0:
                 self._credit[:] = 0.0     # an empty pile owes nothing (as the feeder's credit)
         self._readings = self._sensors.sample(store, t + dt)
+
+    def _switch(self, t: float, rate: float) -> None:
+        switches = len(self.switcher.switches)
+        self.model = self.switcher.update(t, self.model, rate)
+        if len(self.switcher.switches) > switches:
+            switch = self.switcher.switches[-1]
+            print(f"{self.name}: t = {t:g} s, {switch['from_model']} -> {switch['to_model']}: "
+                  f"{switch['reason']}", file=sys.stderr)
+            self.plant.record("switch", self.name, t,
+                              self.particles.slots(self.model.held_ids()), self.location)
+            self.fidelity["switches"] = list(self.switcher.switches)
 
     def _discharge(self, store, outlet: str, ids, slots, t: float) -> None:
         where = self.outlet_locations[outlet]
@@ -168,6 +185,8 @@ class Stockpile(Asset):
             for outlet in self.outlets:
                 out[f"discharge_rate_kg_s_{outlet}"] = self._rates[outlet]
                 out[f"discharged_kg_{outlet}"] = self._discharged[outlet]
+        if self.switcher is not None:  # which model runs: 0 the cheapest card, up the ladder
+            out["model_rung"] = float(self.switcher.rungs.index(self.switcher.ladder.model))
         return out
 
 
@@ -224,6 +243,17 @@ class Budget(Parameters):
     """Largest wall seconds per simulated second of the storage model."""
 
 
+class Switching(Parameters):
+    """How a ``model = "auto"`` stockpile moves along its ladder during a run
+    (``cosim.fidelity.Ladder``)."""
+
+    margin: number(0.0, 0.5) = 0.1
+    """Fraction of each bound of a cheaper card's range the scene must be inside
+    before the pile goes back down to it [-]."""
+    dwell_s: number(0.0, 1e6, unit="s") = 30.0
+    """How long it must stay there first [s]."""
+
+
 class StockpileParameters(Parameters):
     """``[assets.NAME] kind = "stockpile"``: see ``Stockpile``; ``inlets`` and ``outlets``
     are tables of named entry and exit points (``[assets.NAME.outlets.east]``).
@@ -242,6 +272,7 @@ class StockpileParameters(Parameters):
     accuracy: Accuracy | None = None
     budget: Budget | None = None
     cards: Text | None = None
+    switching: Switching = Switching()
 
     @model_validator(mode="after")
     def _complete(self):
@@ -302,10 +333,12 @@ class StockpileKind(AssetKind):
 
     def build(self, name, p, context):
         sim = context.simulation
-        choice = choose_storage(name, p) if p.model == AUTO else None
+        choice, switcher = choose_storage(name, p, [sim["seed"], 1]) if p.model == AUTO \
+            else (None, None)
         model = choice.model if choice is not None else p.model
         options = p.options if model == p.model or model == "rom" else {}
         pile = Stockpile(name, context.plant, model=_storage(model, options, [sim["seed"], 1]),
+                         switcher=switcher,
                          inlets={k: v.position_m for k, v in p.inlets.items()},
                          outlets={k: (v.position_m, v.discharge) for k, v in p.outlets.items()},
                          capacity=p.capacity_kg, sensor_window=sim["sensor_window_s"],
@@ -325,19 +358,22 @@ AUTO = "auto"
 """The stockpile's ``model`` that lets its fidelity cards choose (``choose_storage``)."""
 
 
-def choose_storage(name: str, p: StockpileParameters):
+def choose_storage(name: str, p: StockpileParameters, seed):
     """The storage model a ``model = "auto"`` stockpile runs: the cheapest whose
     fidelity card meets ``p.accuracy`` (or the most accurate within ``p.budget``)
     at the scene's operating point (``cosim.fidelity.choose``). The operating
     point is conservative: the largest scheduled discharge summed over the
     outlets, the initial fill as the held mass. A ROM card counts only with the
     ROM file it was measured on (``options.model``, by SHA-256). Prints the
-    choice and why on stderr; returns the ``Choice``."""
+    choice and why on stderr. Returns the ``Choice`` and the ``Switcher`` that
+    hands the pile up or down the ladder during the run (``cosim.handover``:
+    hysteresis margin ``p.switching.margin``, dwell ``p.switching.dwell_s``)."""
     import hashlib
     import sys
     from pathlib import Path
 
-    from cosim.fidelity import OperatingPoint, choose, read_cards, registered_cards
+    from cosim.fidelity import Ladder, OperatingPoint, choose, read_cards, registered_cards
+    from cosim.handover import Switcher
     from cosim.storage import registered_models
 
     cards = read_cards(p.cards) if p.cards else registered_cards()
@@ -356,7 +392,18 @@ def choose_storage(name: str, p: StockpileParameters):
                     wall_s_per_s=p.budget.wall_s_per_s if p.budget else None)
     print(f"{name}: model auto -> {choice.model}: {choice.reason} at "
           f"{point.throughput_kg_s:g} kg/s and {held / 1e3:g} t", file=sys.stderr)
-    return choice
+    target = ({"tracking_error": p.accuracy.tracking_error} if p.accuracy else
+              {"wall_s_per_s": p.budget.wall_s_per_s})
+    ladder = Ladder(usable, margin=p.switching.margin, dwell_s=p.switching.dwell_s, **target)
+    ladder.model = choice.model
+    rng = np.random.default_rng(seed)
+
+    def build(model):
+        options = {"model": rom_file} if model == "rom" and rom_file else {}
+        return _storage(model, options, rng.integers(2 ** 63))
+
+    return choice, Switcher(ladder, build, window_s=window,
+                            rungs=[c["model"] for c in choice.compared])
 
 
 def _storage(name: str, options: dict, rng_seed) -> StorageModel:

@@ -234,6 +234,9 @@ class RomStorage(StorageModel):
             self._append(ids, mass, deposit(self.container, self._width, heights, mass,
                                             self.rng, landing_x=position[:, 0]))
 
+    def bulk_areal_density(self) -> float:
+        return float(self.container.areal_density)
+
     def adopt(self, ids, t: float, *, positions=None, credit_kg: float = 0.0) -> None:
         """A hand-over (``StorageModel.adopt``): with positions (from a DEM or
         another ROM, in this container's frame) the pile is placed as it lay;
