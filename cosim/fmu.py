@@ -55,6 +55,8 @@ API (stable; other modules rely on it)::
   with ``use_event_mode=True, early_return_allowed=True``; ``events_handled``
   counts them. (FMI 2 Co-Simulation has no event mode: the FMU handles its
   events inside ``doStep``.)
+* Interfaces by asset role (``crusher``, ``mill``, or a package's own) and FMU files a
+  package ships are registered through entry points (``cosim.fmu_registry``).
 * ``describe_fmu(path)`` (``minetwin fmus info``) lists an FMU's attributes
   and variables without instantiating it.
 """
@@ -159,13 +161,27 @@ def fmu_path(name: str, fmi: int = 3) -> Path:
 
 
 def resolve_fmu(name: str) -> str:
-    """The .fmu file a scenario means by ``name``: a path ending in .fmu, or a built FMU."""
+    """The .fmu file a scenario means by ``name``: a path ending in .fmu, a built FMU
+    (fmus/build/<name>.fmu), or an FMU a package registered (``cosim.fmu_registry``)."""
+    from cosim.fmu_registry import registered_fmu_path, registered_fmus
+
     if name.endswith(".fmu"):
         if not Path(name).is_file():
             raise ValidationError("fmu", "a built FMU name or an existing .fmu file",
                                   f"{name!r} not found")
         return name
-    return str(fmu_path(name))
+    built = BUILD_DIR / f"{name}.fmu"
+    if built.is_file():
+        return str(built)
+    registered = registered_fmu_path(name)
+    if registered is not None:
+        return str(registered)
+    names = sorted({p.name[:-len(".fmu")] for p in BUILD_DIR.glob("*.fmu")
+                    if not p.name.endswith("-fmi2.fmu")} | set(registered_fmus()))
+    raise ValidationError("fmu", f"an existing .fmu file or an FMU name: one of {names} "
+                          "(built in fmus/build or registered by a package)",
+                          f"got {name!r}; if it is one of MineTwin's own, run "
+                          "`minetwin fmus build`")
 
 
 def check_fmu_parameters(fmu: str, parameters: dict) -> None:

@@ -44,6 +44,9 @@ class AssetKind:
     """The class of the component that owns the ports (for the default ``ports``)."""
     loadable = False
     """True for kinds that trucks load from (``take(mass, t)``), as a source."""
+    fmu_role: str | None = None
+    """The FMU role (``cosim.fmu_registry``) of the kind's FMU, if it steps one: its
+    interface is checked when the FMU loads."""
 
     def ports(self, parameters) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """``(inlets, outlets)`` of an asset of this kind with ``parameters``."""

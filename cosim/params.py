@@ -147,9 +147,10 @@ class FmuAssetParameters(Parameters):
 
     @model_validator(mode="after")
     def _fmu(self):
-        from cosim.fmu import check_fmu_parameters
+        from cosim.fmu import check_fmu_parameters, resolve_fmu
 
         try:
+            resolve_fmu(self.fmu)
             check_fmu_parameters(self.fmu, self.parameters)
         except ValidationError as exc:
             raise refuse_from(exc) from None

@@ -56,6 +56,7 @@ from pydantic_core import PydanticCustomError
 
 from cosim import jsonio
 from cosim.errors import ValidationError, raise_all
+from cosim.fmu import FmuComponent
 from cosim.params import Parameters, check, number, refuse
 
 WALL_CLOCK_FIELDS = ("wall_s", "realtime_factor")
@@ -376,6 +377,8 @@ def summarize(simulation: Simulation) -> dict:
         "mass_balance_rel_error": float(series["plant.mass_balance_rel_error"].max())
         if len(series) else 0.0,
         "stopped_by": master.stopped,  # None, or the component that requested the stop and why
+        "fmus": {component.name: str(component.path) for component in master.components
+                 if isinstance(component, FmuComponent)},  # which file each FMU ran from
     }
     crusher, pile, mill = (next(iter(assets_of_kind(simulation.config, kind)), kind)
                            for kind in ("crusher", "stockpile", "mill"))

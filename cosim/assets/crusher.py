@@ -173,7 +173,7 @@ class JawCrusher(Asset):
 class CrusherParameters(FmuAssetParameters):
     """``[assets.NAME] kind = "crusher"``: a ``JawCrusher`` queue-and-zone asset with its
     crusher FMU (the jaw crusher ``"crusher"``, the cone crusher ``"cone_crusher"``, or any
-    FMU with ``cosim.fmu.CRUSHER_INTERFACE``)."""
+    FMU in the ``crusher`` role: ``cosim.fmu.CRUSHER_INTERFACE``)."""
 
     position_m: Position
     """Hopper (the trucks' dump point) [m]."""
@@ -190,9 +190,11 @@ class CrusherKind(AssetKind):
 
     Parameters = CrusherParameters
     component = JawCrusher
+    fmu_role = "crusher"
 
     def build(self, name, p, context):
-        from cosim.fmu import CRUSHER_INTERFACE, FmuComponent, resolve_fmu
+        from cosim.fmu import FmuComponent, resolve_fmu
+        from cosim.fmu_registry import role_interface
 
         sim = context.simulation
         crusher = JawCrusher(name, context.plant, location=p.position_m,
@@ -200,7 +202,7 @@ class CrusherKind(AssetKind):
                              jaw_throughput=p.jaw_throughput_kg_s,
                              sensor_window=sim["sensor_window_s"],
                              sensor_interval=sim["record_every_s"])
-        physics = FmuComponent(resolve_fmu(p.fmu), interface=CRUSHER_INTERFACE,
+        physics = FmuComponent(resolve_fmu(p.fmu), interface=role_interface(self.fmu_role),
                                name=f"{name}_fmu", parameters=p.parameters)
         physics.set_input("speed", p.speed_rad_s)
         context.add(crusher)

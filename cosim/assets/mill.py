@@ -166,7 +166,7 @@ class Mill(Asset):
 # ------------------------------------------------------------------ scenario kind
 class MillParameters(FmuAssetParameters):
     """``[assets.NAME] kind = "mill"``: a ``Mill`` with its mill FMU (``"mill"`` or any FMU
-    with ``cosim.fmu.MILL_INTERFACE``)."""
+    in the ``mill`` role: ``cosim.fmu.MILL_INTERFACE``)."""
 
     position_m: Position
     """Mill inlet [m]."""
@@ -187,9 +187,11 @@ class MillKind(AssetKind):
 
     Parameters = MillParameters
     component = Mill
+    fmu_role = "mill"
 
     def build(self, name, p, context):
-        from cosim.fmu import MILL_INTERFACE, FmuComponent, resolve_fmu
+        from cosim.fmu import FmuComponent, resolve_fmu
+        from cosim.fmu_registry import role_interface
 
         sim = context.simulation
         mill = Mill(name, context.plant, location=p.position_m,
@@ -197,7 +199,7 @@ class MillKind(AssetKind):
                     product_event_interval=p.product_event_interval_s,
                     update_interval=p.update_interval_s, sensor_window=sim["sensor_window_s"],
                     sensor_interval=sim["record_every_s"], method=p.integrator)
-        physics = FmuComponent(resolve_fmu(p.fmu), interface=MILL_INTERFACE,
+        physics = FmuComponent(resolve_fmu(p.fmu), interface=role_interface(self.fmu_role),
                                name=f"{name}_fmu", parameters=p.parameters)
         physics.set_input("speed_setpoint", p.speed_rad_s)
         context.add(mill)

@@ -29,10 +29,10 @@ def register(subparsers) -> None:
                     "FmuComponent, checking the crusher or mill interface. Default: every "
                     "FMU in fmus/build/.")
     validate.add_argument("fmu", nargs="*", help="FMU files (default: fmus/build/*.fmu)")
-    validate.add_argument("--interface", choices=("auto", "crusher", "mill", "none"),
-                          default="auto",
-                          help="interface to check (auto: mill if the file name starts with "
-                               "'mill', else crusher)")
+    validate.add_argument("--interface", metavar="ROLE", default="auto",
+                          help="the FMU role whose interface to check (`minetwin fmus roles` "
+                               "lists them), 'none', or 'auto' (default: mill if the file "
+                               "name starts with 'mill', else crusher)")
     validate.set_defaults(handler=run_validate)
     info = actions.add_parser(
         "info", help="list an FMU's variables (causality, type, unit, start, description)",
@@ -43,6 +43,14 @@ def register(subparsers) -> None:
     info.add_argument("fmu", help="FMU file")
     info.add_argument("--json", action="store_true", help="print one JSON object instead")
     info.set_defaults(handler=run_info)
+    roles = actions.add_parser(
+        "roles", help="list the FMU roles and the variables an FMU in each must offer",
+        description="List every registered FMU role (MineTwin's crusher and mill, and any "
+                    "a package registers under the 'minetwin.fmu_roles' entry points) with "
+                    "the variables, causalities, shapes and units its interface requires, "
+                    "and the FMU files packages register under 'minetwin.fmus'.")
+    roles.add_argument("--json", action="store_true", help="print one JSON object instead")
+    roles.set_defaults(handler=run_roles)
 
 
 def run_build(args) -> int:
@@ -71,8 +79,14 @@ def run_validate(args) -> int:
     from fmpy.validation import validate_fmu
 
     from cosim.errors import ValidationError
-    from cosim.fmu import (BUILD_DIR, CRUSHER_INTERFACE, MILL_INTERFACE, FmuCallError,
-                           FmuComponent, check_binary, read_description)
+    from cosim.fmu import BUILD_DIR, FmuCallError, FmuComponent, check_binary, read_description
+    from cosim.fmu_registry import registered_roles, role_interface
+
+    allowed = ["auto", *registered_roles(), "none"]
+    if args.interface not in allowed:
+        print(f"minetwin fmus validate: error: --interface: must be one of {allowed} "
+              f"(got {args.interface!r})", file=sys.stderr)
+        return 2
 
     paths = [Path(p) for p in args.fmu] or sorted(BUILD_DIR.glob("*.fmu"))
     if not paths:
@@ -100,7 +114,11 @@ def run_validate(args) -> int:
         choice = args.interface
         if choice == "auto":
             choice = "mill" if path.name.startswith("mill") else "crusher"
-        interface = {"crusher": CRUSHER_INTERFACE, "mill": MILL_INTERFACE, "none": ()}[choice]
+        try:
+            interface = () if choice == "none" else role_interface(choice, "--interface")
+        except ValidationError as exc:
+            print(f"minetwin fmus validate: error: {exc}", file=sys.stderr)
+            return 2
         problems = list(validate_fmu(str(path)))
         if not problems:
             try:
@@ -147,5 +165,36 @@ def run_info(args) -> int:
             text += " (" + ", ".join(f"{k} = {n}" for k, n in v["items"].items()) + ")"
         lines.append(f"  {v['name']:<28} {v['causality']:<11} {kind:<12} {v['unit']:<8} "
                      f"{start:<18} {text}")
+    print("\n".join(lines))
+    return 0
+
+
+def run_roles(args) -> int:
+    import json
+
+    from cosim.errors import ValidationError
+    from cosim.fmu_registry import (registered_fmu_path, registered_fmus, registered_roles,
+                                    role_interface)
+
+    try:
+        roles = {role: [{"name": v.name, "causality": v.causality, "type": v.type,
+                         "shape": list(v.shape), "unit": v.unit}
+                        for v in role_interface(role)] for role in registered_roles()}
+        files = {name: str(registered_fmu_path(name)) for name in registered_fmus()}
+    except ValidationError as exc:
+        print(f"minetwin fmus roles: error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps({"roles": roles, "fmus": files}, indent=1, allow_nan=False))
+        return 0
+    lines = []
+    for role, variables in roles.items():
+        lines.append(f"{role}")
+        for v in variables:
+            shape = "[" + "x".join(str(n) for n in v["shape"]) + "]" if v["shape"] else ""
+            lines.append(f"  {v['name']:<24} {v['causality']:<10} {v['type'] + shape:<14} "
+                         f"{v['unit']}")
+    lines.append("registered FMU files" + ("" if files else ": none"))
+    lines.extend(f"  {name:<24} {path}" for name, path in files.items())
     print("\n".join(lines))
     return 0

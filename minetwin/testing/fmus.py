@@ -2,7 +2,7 @@
 
 Wraps ``cosim.fmu.FmuComponent`` (which checks variables, causalities and
 array sizes at load, fmus/README.md) with interface names a test can
-write: ``"crusher"`` or ``"mill"`` (fmus/README.md), or a tuple of
+write: a registered FMU role such as ``"crusher"`` or ``"mill"`` (fmus/README.md), or a tuple of
 ``cosim.fmu.VariableSpec`` for an asset of the user's own. A built FMU may
 be named by its model name (``"cone_crusher"`` -> fmus/build/cone_crusher.fmu).
 """
@@ -15,9 +15,10 @@ from cosim.errors import ValidationError
 
 
 def interfaces() -> dict:
-    from cosim.fmu import CRUSHER_INTERFACE, MILL_INTERFACE
+    """The registered FMU roles' interfaces (``cosim.fmu_registry``), by role."""
+    from cosim.fmu_registry import registered_roles, role_interface
 
-    return {"crusher": CRUSHER_INTERFACE, "mill": MILL_INTERFACE}
+    return {role: role_interface(role) for role in registered_roles()}
 
 
 def load_validated_fmu(path, interface="crusher", *, name=None, parameters=None):
