@@ -400,7 +400,8 @@ def summarize(simulation: Simulation) -> dict:
 
 def write_outputs(simulation: Simulation, out_dir, failure=None,
                   scenario_name: str | None = None) -> dict:
-    """Write timeseries.parquet, summary.json and PNG plots to ``out_dir``; the summary.
+    """Write timeseries.parquet, summary.json and PNG plots to ``out_dir`` (overview.png;
+    fidelity_NAME.png for a ``model = "auto"`` stockpile); the summary.
 
     After a failed run (``failure``) they hold what was recorded up to it, and the
     summary's ``failed`` says why. ``scenario_name`` titles the figures."""
@@ -417,6 +418,12 @@ def write_outputs(simulation: Simulation, out_dir, failure=None,
                   run=run_label(simulation.config, scenario=scenario_name),
                   assets={kind: assets_of_kind(simulation.config, kind)
                           for kind in ("crusher", "stockpile", "mill")})
+    if summary["fidelity"]:
+        from cosim.fidelity_plot import plot_fidelity
+
+        for pile, choice in summary["fidelity"].items():
+            plot_fidelity(choice, out / f"fidelity_{pile}.png", series=series, pile=pile,
+                          run=run_label(simulation.config, scenario=scenario_name))
     return summary
 
 

@@ -275,3 +275,4 @@ def test_an_auto_stockpile_hands_over_up_the_ladder_when_its_card_stops_holding(
     assert at == pytest.approx(switch["time_s"]) and count == switch["particles"] > 0
     assert handed == pytest.approx(switch["held_mass_kg"], rel=1e-12)
     assert time.size == rung.size
+    assert (tmp_path / "out" / "fidelity_stockpile.png").stat().st_size > 0

@@ -271,3 +271,36 @@ def test_example_figures(figures, tmp_path):
                        "heldout", tmp_path / "pile_fields.png")
     _check(figures, ["stability.png", "ladder.png", "pile_fields.png"], run=None)
     assert "storage models DEM and ROM (default modes)" in figures["pile_fields.png"][1]
+
+
+def test_fidelity_chart_shows_the_target_every_model_and_the_timeline(figures, tmp_path):
+    from cosim.fidelity_plot import plot_fidelity
+
+    compared = [{"model": m, "holds": m != "mixing", "tracking_error": e, "noise_floor": 0.16,
+                 "wall_s_per_s": c, "rows": ["heldout"]}
+                for m, e, c in (("fifo", 0.9, 3e-5), ("mixing", 0.56, 9e-5), ("rom", 0.17, 1e-3),
+                                ("dem", 0.16, 1.1))]
+    point = {"throughput_kg_s": 400.0, "held_mass_kg": 9e4, "window_s": 30.0}
+    switches = [{"time_s": 120.0, "from_model": "rom", "to_model": "dem", "reason": "x"}]
+    run = {"model": "rom", "reason": "r", "target": {"tracking_error": 0.3},
+           "operating_point": point, "compared": compared, "switches": switches}
+    t = np.arange(0.0, 300.0, 1.0)
+    series = _series(t, **{"pile.model_rung": np.where(t < 120.0, 2.0, 3.0)})
+    plot_fidelity(run, tmp_path / "fidelity_pile.png", series=series, pile="pile", run=RUN)
+    plot_fidelity({**run, "target": {"wall_s_per_s": 0.01}}, tmp_path / "budget.png")
+    for name in ("fidelity_pile.png", "budget.png"):
+        found, title, fig = figures[name]
+        assert found == [], (name, found)
+        labels = [text.get_text() for ax in fig.axes if ax.get_legend()
+                  for text in ax.get_legend().get_texts()]
+        assert "chosen: rom" in labels and "mixing (card does not hold here)" in labels
+        assert any(label.startswith("DEM noise floor") for label in labels)
+    assert RUN in figures["fidelity_pile.png"][1]
+    _, _, fig = figures["fidelity_pile.png"]
+    timeline = fig.axes[1]
+    assert [t.get_text() for t in timeline.get_yticklabels()] == \
+        ["0: fifo", "1: mixing", "2: rom", "3: dem"]
+    assert "target: tracking error <= 0.3" in [
+        t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "budget: 0.01 wall s per simulated s" in [
+        t.get_text() for t in figures["budget.png"][2].axes[0].get_legend().get_texts()]

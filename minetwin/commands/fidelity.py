@@ -43,6 +43,8 @@ def register(subparsers) -> None:
                         help="largest tracking error the scene accepts (fraction, 0..1)")
     target.add_argument("--budget", type=float,
                         help="largest cost the scene affords [wall s per simulated s]")
+    choose.add_argument("--plot", metavar="PNG",
+                        help="also write the speed-against-accuracy chart of the choice")
     choose.set_defaults(handler=run_choose)
     parser.set_defaults(handler=lambda args: parser.print_help() or 2)
 
@@ -105,4 +107,8 @@ def run_choose(args) -> int:
     for c in choice.compared:
         print(f"{c['model']:>7} {str(c['holds']):>5} {c['tracking_error']:7.3f} "
               f"{c['noise_floor']:7.3f} {c['wall_s_per_s']:10.3g}  {', '.join(c['rows'])}")
+    if args.plot:
+        from cosim.fidelity_plot import plot_fidelity
+
+        print(f"wrote {plot_fidelity(choice.to_json(), args.plot)}", file=sys.stderr)
     return 0
