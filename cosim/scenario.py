@@ -30,7 +30,10 @@ the return leg arrives one step later).
 ``[simulation]`` (defaults in brackets): until_s [1200], step_s [0.5],
 record_every_s [= step_s], seed [1], sensor_window_s [30],
 event_store_timeout_s [30]: how long a write waits for another process that
-holds the event store's lock. The communication step 0.5 s resolves the
+holds the event store's lock; coupling_tolerance [none] and coupling_signals
+[[]]: the relative coupling error the declared signals' window means may carry,
+for which `minetwin coupling-step` finds the largest step by step doubling (a
+run itself keeps step_s). The communication step 0.5 s resolves the
 fastest material dynamics of the paper's plant: a particle stays about 1 s in
 the crusher zone (785 kg at 1 t/s) and the trucks dump every 27.5 s; the
 FMUs' physics (crusher torque, mill speed with a 5 s time constant, mill
@@ -57,7 +60,7 @@ from pydantic_core import PydanticCustomError
 from cosim import jsonio
 from cosim.errors import ValidationError, raise_all
 from cosim.fmu import FmuComponent
-from cosim.params import Parameters, check, number, refuse
+from cosim.params import Parameters, Text, check, number, refuse
 
 WALL_CLOCK_FIELDS = ("wall_s", "realtime_factor")
 """Summary fields that depend on the machine, not on the scenario and seed."""
@@ -72,6 +75,11 @@ class SimulationParameters(Parameters):
     seed: number(0, 2**63 - 1, integer=True) = 1
     sensor_window_s: number(0.0, 3600.0, unit="s") = 30.0
     event_store_timeout_s: number(0.0, 3600.0, unit="s") = 30.0
+    coupling_tolerance: number(0.0, 1.0, low_open=True) | None = None
+    """Largest relative coupling error of the declared signals (``minetwin
+    coupling-step``, ``cosim.analyses.coupling_step``) [-]; default: none declared."""
+    coupling_signals: list[Text] = []
+    """The signals (``component.output``) the coupling tolerance applies to."""
 
     @model_validator(mode="after")
     def _complete(self):

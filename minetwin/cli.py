@@ -25,6 +25,7 @@ COMMAND_MODULES = (
     "minetwin.commands.dem",
     "minetwin.commands.rom",
     "minetwin.commands.fidelity",
+    "minetwin.commands.coupling",
     "minetwin.commands.fmus",
     "minetwin.commands.reference",
     "minetwin.commands.events",

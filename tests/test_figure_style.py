@@ -304,3 +304,15 @@ def test_fidelity_chart_shows_the_target_every_model_and_the_timeline(figures, t
         t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     assert "budget: 0.01 wall s per simulated s" in [
         t.get_text() for t in figures["budget.png"][2].axes[0].get_legend().get_texts()]
+
+
+def test_coupling_step_figure(figures, tmp_path):
+    from cosim.analyses.coupling_step import coupling_errors, largest_step_within, plot
+
+    t = np.arange(1.0, 301.0, 1.0)
+    runs = {h: _series(t, **{"crusher_fmu.power": 1e3 + 50 * np.sin(t / 20) + 100 * h})
+            for h in (0.25, 0.5, 1.0)}
+    table = coupling_errors(runs, ["crusher_fmu.power"], window_s=60.0, until=300.0)
+    plot(table, {0.25: 0.01, 0.5: 0.006, 1.0: 0.004}, 0.1, largest_step_within(table, 0.1),
+         tmp_path / "coupling_step.png", run=RUN)
+    _check(figures, ["coupling_step.png"])
