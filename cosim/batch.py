@@ -40,7 +40,6 @@ import json
 import os
 import socket
 import subprocess
-import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
 from concurrent.futures import wait as wait_futures
@@ -50,7 +49,6 @@ from pathlib import Path
 
 from cosim import jsonio
 from cosim.errors import ValidationError
-from tqdm import tqdm
 
 RETRIES = 2
 """Default number of times a task whose worker died is run again."""
@@ -260,49 +258,34 @@ class LocalExecutor(Executor):
 
 # ---------------------------------------------------------------- progress
 class BatchProgress:
-    """One line per change (at most every ``log_every_s`` in a log, redrawn
-    every ``every_s`` on a terminal): done / running / failed, ETA."""
+    """Runs finished out of the batch on ``cosim.progress``'s tqdm line (a bar on a
+    terminal, a plain line at most every ``log_every_s`` in a log), with how many
+    are done, failed, already stored and running."""
 
     def __init__(self, label: str, total: int, *, stream=None, every_s: float = 1.0,
                  log_every_s: float = 10.0):
+        from cosim.progress import Progress
+
         self.label, self.total = label, total
-        self.stream = stream if stream is not None else sys.stderr
-        self.terminal = bool(getattr(self.stream, "isatty", lambda: False)())
-        self.every_s = every_s if self.terminal else log_every_s
-        self.start = time.perf_counter()
-        self.last = None
+        self._progress = Progress(label, total, stream=stream, every_s=every_s,
+                                  log_every_s=log_every_s, unit="run")
         self.done = self.running = self.failed = self.skipped = 0
 
+    def _counts(self) -> str:
+        return (f"{self.done} done, {self.failed} failed"
+                + (f", {self.skipped} already stored" if self.skipped else "")
+                + f", {self.running} running")
+
     def line(self) -> str:
-        elapsed = time.perf_counter() - self.start
-        finished = self.done + self.failed
-        ran = finished - self.skipped
-        parts = [f"{finished}/{self.total} finished ({self.done} done, {self.failed} failed"
-                 + (f", {self.skipped} already stored" if self.skipped else "") + ")",
-                 f"{self.running} running", f"{tqdm.format_interval(elapsed)} elapsed"]
-        left = self.total - finished
-        if left and ran > 0:
-            parts.append(f"ETA {tqdm.format_interval(elapsed / ran * left)}")
-        return f"{self.label}: " + ", ".join(parts)
+        return self._progress.line(self.done + self.failed, self._counts())
 
     def update(self, *, force: bool = False, note: str = "") -> None:
-        now = time.perf_counter()
         if note:
-            end = "\n" if not self.terminal else "\033[K\n"
-            print(("\r" if self.terminal else "") + f"{self.label}: {note}", end=end,
-                  file=self.stream, flush=True)
-        if not force and self.last is not None and now - self.last < self.every_s:
-            return
-        self.last = now
-        if self.terminal:
-            print(f"\r{self.line()}\033[K", end="", file=self.stream, flush=True)
-        else:
-            print(self.line(), file=self.stream, flush=True)
+            self._progress.note(note)
+        self._progress.update(self.done + self.failed, self._counts(), force=force)
 
     def close(self) -> None:
-        self.update(force=True)
-        if self.terminal:
-            print(file=self.stream, flush=True)
+        self._progress.close(self._counts())
 
 
 # ------------------------------------------------------------------- batch

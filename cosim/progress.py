@@ -23,6 +23,9 @@ total : float or None
     unknown (no bar, no remaining time).
 stream : file
     Where to write, default ``sys.stderr``.
+unit : str
+    What is counted, default simulated seconds (``UNIT``); a whole count such as
+    ``"run"`` is shown as integers.
 every_s, log_every_s : float
     Least wall time [s] between two updates on a terminal (default 1) and
     in a log (default 10).
@@ -44,9 +47,10 @@ class Progress:
     """Progress of one run (see module docstring)."""
 
     def __init__(self, label: str, total: float | None = None, *, stream=None,
-                 every_s: float = 1.0, log_every_s: float = 10.0):
+                 every_s: float = 1.0, log_every_s: float = 10.0, unit: str = UNIT):
         self.label = label
         self.total = total
+        self.unit = unit
         self.stream = stream if stream is not None else sys.stderr
         self.terminal = self.stream.isatty()
         self.every_s = every_s if self.terminal else log_every_s
@@ -64,6 +68,9 @@ class Progress:
         # past an estimated total: no bar rather than a bar over 100 %
         return None if not self.total or self._past_total(done) else self.total
 
+    def _shown(self, done: float):
+        return round(done, 2) if self.unit == UNIT else int(round(done))
+
     def line(self, done: float, extra: str = "") -> str:
         """The progress text at ``done`` simulated seconds (no line break)."""
         now = wallclock.perf_counter()
@@ -74,9 +81,9 @@ class Progress:
         postfix = extra
         if self._past_total(done):
             postfix = ", ".join(p for p in (f"estimated {self.total:g} s", extra) if p)
-        shown = round(min(done, self.total) if self._total_for(done) else done, 2)
+        shown = self._shown(min(done, self.total) if self._total_for(done) else done)
         return tqdm.format_meter(shown, self._total_for(done), now - self.start,
-                                 prefix=self.label, unit=UNIT, rate=rate, ascii=True,
+                                 prefix=self.label, unit=self.unit, rate=rate, ascii=True,
                                  initial=shown if rate is None else 0,
                                  postfix=postfix or None,
                                  bar_format=None if self._total_for(done) else
@@ -96,9 +103,9 @@ class Progress:
             if self._bar is not None:
                 self._bar.close()
             self._bar = tqdm(total=self._total_for(done), initial=done, desc=self.label,
-                             unit=UNIT, file=self.stream, mininterval=self.every_s,
+                             unit=self.unit, file=self.stream, mininterval=self.every_s,
                              dynamic_ncols=True, leave=True)
-        self._bar.n = round(min(done, self._bar.total) if self._bar.total else done, 2)
+        self._bar.n = self._shown(min(done, self._bar.total) if self._bar.total else done)
         self._bar.set_postfix_str(extra, refresh=False)
         self._bar.refresh()
 

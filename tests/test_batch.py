@@ -50,7 +50,8 @@ def test_records_in_task_order_with_any_number_of_workers_and_failures_recorded(
     assert batch.summary(records) == {"runs": 4, "done": 3, "failed": [
         {"name": "parse 1", "key": failed["key"], "error": failed["error"]}]}
     err = capsys.readouterr().err
-    assert "parse 1 FAILED" in err and "4/4 finished (3 done, 1 failed)" in err
+    assert "parse 1 FAILED" in err
+    assert "| 4/4 [" in err and "3 done, 1 failed, 0 running" in err  # tqdm's line
 
 
 def test_a_restarted_batch_skips_the_runs_its_store_holds(tmp_path):

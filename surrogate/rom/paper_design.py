@@ -98,6 +98,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from cosim import batch
 from surrogate.rom import doe
@@ -377,8 +378,9 @@ def build_pile(design: Design, pile: PileSpec, progress=None):
             raise ValidationError("pile", "a stable settling run",
                                   f"{pile.name} blew up at t = {dem.time:.2f} s: {reason}")
         if progress:
-            progress(f"pile {pile.name}: settled {k + 1}/{steps} s, "
-                     f"wall {time.perf_counter() - tic:.0f} s")
+            progress(tqdm.format_meter(k + 1, steps, time.perf_counter() - tic,
+                                       prefix=f"pile {pile.name}: settling", unit="sim-s",
+                                       ascii=True))
     snapshot = dem.snapshot()
     record = {"kind": "pile", "name": pile.name, "spec": asdict(pile),
               "particles": dem.n, "held_mass_kg": dem.held_mass(),
@@ -576,10 +578,13 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
             left = (steps - state.step) * dem.n / dem.dt * doe.CONTROL_STEP
             cpu_rate = state.particle_steps / max(state.cpu, 1e-9)
             wall_rate = state.particle_steps / max(state.wall, 1e-9)
-            _say(progress, f"run {run.name}: t = {state.step}/{steps} s, {dem.n} disks, held "
-                           f"{dem.held_mass() / 1e3:.0f} t, {cpu_rate / 1e6:.1f}e6 particle-"
-                           f"steps per CPU s ({wall_rate / 1e6:.1f}e6 per wall s), run ETA "
-                           f"{_duration(left / wall_rate)} ({_duration(left / cpu_rate)} of CPU)")
+            _say(progress, tqdm.format_meter(
+                state.step, steps, state.wall, prefix=f"run {run.name}", unit="sim-s",
+                ascii=True, rate=state.step / max(state.wall, 1e-9),
+                postfix=f"{dem.n} disks, held {dem.held_mass() / 1e3:.0f} t, "
+                        f"{cpu_rate / 1e6:.1f}e6 particle-steps per CPU s "
+                        f"({wall_rate / 1e6:.1f}e6 per wall s), "
+                        f"{_duration(left / cpu_rate)} of CPU left"))
     record = {"kind": "run", "name": run.name, "key": key, "design": design.name,
               "design_version": DESIGN_VERSION, "spec": asdict(run),
               "start_key": start_key(design, run.start), "seed": run.seed,
@@ -932,12 +937,11 @@ def _progress_of(design: Design, work: Path, job) -> float:
 
 def _status(design: Design, spent: float, total: float, elapsed: float, done: int,
             jobs: int) -> str:
-    """One plain progress line: jobs done, particle-steps done and the ETA at
-    this session's pace."""
-    left = max(total - spent, 0.0)
-    eta = _duration(elapsed / spent * left) if spent > 0 else "unknown"
-    return (f"design {design.name}: {done}/{jobs} jobs done, {spent:.3g} of {total:.3g} "
-            f"particle-steps, ETA {eta}")
+    """One progress line (tqdm's): particle-steps done of those planned, the pace and
+    the ETA at this session's pace, and the jobs done."""
+    return tqdm.format_meter(min(spent, total), total, elapsed, prefix=f"design {design.name}",
+                             unit="particle-steps", unit_scale=True, ascii=True,
+                             postfix=f"{done}/{jobs} jobs done")
 
 
 def design_description(design: Design) -> dict:
