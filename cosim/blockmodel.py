@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cosim.errors import ValidationError, check_finite_range
+from cosim.numerics import power
 
 
 @dataclass(frozen=True)
@@ -102,7 +103,7 @@ def mwd_signal(hardness, x, *, beta: float = 0.4, location_error: float = 0.0,
         if rng is None:
             raise ValidationError("rng", "a numpy Generator when location_error > 0")
         x = x + rng.uniform(-location_error, location_error, size=x.shape)
-    return hardness(x) ** beta
+    return power(np.asarray(hardness(x), dtype=np.float64), float(beta))
 
 
 @dataclass

@@ -14,6 +14,16 @@ Two things make a numpy/numba program round differently on another processor:
   ``fastmath``, so a FIFO or mixing mine run is bitwise the same on every
   x86-64 machine (``tests/test_reproducibility.py`` hashes one).
 
+- **numpy's SIMD maths.** numpy picks its ``exp``, ``log``, ``power`` (and
+  ``log10``, ``expm1``, ``log1p``, ``exp2``, ``cbrt``, ``arctan2``) loops by the
+  CPU's instruction set at import; its AVX-512 loops (``X86_V4``) round the last
+  bit differently from the AVX2 and baseline ones. Measured on an AMD EPYC with
+  AVX-512: the seeded FIFO and mixing runs changed their digests, and the same
+  machine with ``NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL"`` gave the digests
+  recorded on a machine without AVX-512. The core's elementwise transcendental
+  functions therefore go through ``exp``, ``log``, ``power`` and ``cbrt`` below, compiled
+  loops over the C library's scalar functions, the same on every x86-64 CPU.
+
 The DEM and the ROM's surface DEM are chaotic: a last-bit difference grows
 until the trajectory is another one. Their hot kernels use ``fastmath`` for
 speed (``HOT_JIT``) and so depend on the CPU. ``MINETWIN_REPRODUCIBLE=1``
@@ -44,7 +54,9 @@ if REPRODUCIBLE:
     # numba reads its environment when it is imported; re-read it before anything compiles
     numba.core.config.reload_config()
 
-from numba import njit  # noqa: E402
+import math  # noqa: E402
+
+from numba import njit, vectorize  # noqa: E402
 
 HOT_JIT = {"cache": True, "fastmath": not REPRODUCIBLE, "error_model": "numpy"}
 """numba options of the chaotic hot kernels (DEM, surface DEM): fastmath lets LLVM
@@ -54,10 +66,12 @@ error_model="numpy" drops the zero-division checks."""
 
 
 ANOTHER_CPU_ENV = {"OPENBLAS_CORETYPE": "Prescott", "NUMBA_CPU_NAME": "generic",
-                   "GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX2_Usable,-FMA_Usable,-AVX_Usable"}
+                   "GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX2_Usable,-FMA_Usable,-AVX_Usable",
+                   "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR"}
 """Environment under which this machine computes as another x86-64 CPU would: OpenBLAS's
-baseline kernel, numba compiling for a generic CPU, glibc's maths without AVX2 and FMA.
-The nearest stand-in for a second machine in a test."""
+baseline kernel, numba compiling for a generic CPU, glibc's maths without AVX2 and FMA,
+numpy's loops without AVX-512 (features the machine lacks are ignored). The nearest
+stand-in for a second machine in a test."""
 
 
 @njit(cache=True)
@@ -102,3 +116,38 @@ def rows_times_transpose(rows, matrix) -> np.ndarray:
     out = np.empty((rows.shape[0], matrix.shape[0]))
     _rows_times_transpose(rows, matrix, out)
     return out[0] if single else out
+
+
+# Elementwise exp, log and power that round the same on every x86-64 CPU: a compiled
+# loop over the C library's scalar functions (no fastmath, so nothing is reassociated),
+# not numpy's loops chosen by the instruction set (module docstring).
+@vectorize(["float64(float64)"], cache=True)
+def exp(x):
+    """e**x, elementwise (numpy.exp's meaning; the same bits on every CPU)."""
+    return math.exp(x)
+
+
+@vectorize(["float64(float64)"], cache=True)
+def log(x):
+    """Natural logarithm, elementwise (numpy.log's meaning: -inf at 0, nan below;
+    the same bits on every CPU)."""
+    if x > 0.0:
+        return math.log(x)
+    return -math.inf if x == 0.0 else math.nan
+
+
+@vectorize(["float64(float64, float64)"], cache=True)
+def power(base, exponent):
+    """base**exponent, elementwise (numpy.power's meaning for floats; the same bits
+    on every CPU)."""
+    if base < 0.0 and exponent != math.floor(exponent):
+        return math.nan
+    if base == 0.0 and exponent < 0.0:
+        return math.inf
+    return math.pow(base, exponent)
+
+
+@vectorize(["float64(float64)"], cache=True)
+def cbrt(x):
+    """Cube root, elementwise (numpy.cbrt's meaning; the same bits on every CPU)."""
+    return np.cbrt(x)  # numba lowers this to the C library's cbrt

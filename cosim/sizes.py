@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from cosim.errors import ValidationError
-from cosim.numerics import rows_times_transpose
+from cosim.numerics import exp, log, power, rows_times_transpose
 
 N_CLASSES = 16
 """Number of size classes N_d."""
@@ -32,10 +32,10 @@ N_CLASSES = 16
 RATIO = 10.0 ** (1.0 / 3.0)
 """Ratio r between neighbouring class diameters."""
 
-DIAMETERS = 1e-5 * RATIO ** np.arange(N_CLASSES)
+DIAMETERS = 1e-5 * power(RATIO, np.arange(N_CLASSES, dtype=np.float64))
 """Class diameters d_k [m] (upper edge of class k)."""
 
-_LOG_EDGES = np.log(np.concatenate(([DIAMETERS[0] / RATIO], DIAMETERS)))
+_LOG_EDGES = log(np.concatenate(([DIAMETERS[0] / RATIO], DIAMETERS)))
 
 
 def class_of(diameter: float) -> int:
@@ -109,7 +109,7 @@ def d_passing(f, fraction: float) -> np.ndarray:
     width = np.where(p_hi > p_lo, p_hi - p_lo, 1.0)
     w = np.clip((target - p_lo) / width, 0.0, 1.0)
     log_d = _LOG_EDGES[j - 1] + w * (_LOG_EDGES[j] - _LOG_EDGES[j - 1])
-    out = np.exp(log_d)
+    out = exp(log_d)
     return out[0] if single else out
 
 
@@ -162,8 +162,8 @@ def _swebrec_cdf(medians: np.ndarray, x_max: float, b: float) -> np.ndarray:
     """Swebrec passing fraction at the class edges for each median (N, 16)."""
     x = np.minimum(DIAMETERS, x_max)[None, :]
     with np.errstate(divide="ignore"):
-        ratio = np.log(x_max / x) / np.log(x_max / medians[:, None])
-    return np.where(x >= x_max, 1.0, 1.0 / (1.0 + ratio ** b))
+        ratio = log(x_max / x) / log(x_max / medians[:, None])
+    return np.where(x >= x_max, 1.0, 1.0 / (1.0 + power(ratio, float(b))))
 
 
 def rosin_rammler(x_c: float = 0.15, n: float = 1.0) -> np.ndarray:
@@ -183,7 +183,7 @@ def rosin_rammler(x_c: float = 0.15, n: float = 1.0) -> np.ndarray:
         raise ValidationError("x_c", "> 0 m", f"got {x_c!r}")
     if not n > 0:
         raise ValidationError("n", "> 0", f"got {n!r}")
-    return fractions_from_cdf(1.0 - np.exp(-(DIAMETERS / x_c) ** n))
+    return fractions_from_cdf(1.0 - exp(-power(DIAMETERS / x_c, float(n))))
 
 
 def blasted_fractions(rng: np.random.Generator, count: int, *, x50: float = 0.1,
@@ -195,6 +195,6 @@ def blasted_fractions(rng: np.random.Generator, count: int, *, x50: float = 0.1,
     log-normally around ``x50`` with relative spread ``x50_spread`` [-],
     because a real muck pile is not uniformly fragmented.
     """
-    medians = np.clip(x50 * np.exp(x50_spread * rng.standard_normal(count)),
+    medians = np.clip(x50 * exp(x50_spread * rng.standard_normal(count)),
                       1e-4, 0.9 * x_max)
     return fractions_from_cdf(_swebrec_cdf(medians, x_max, b))

@@ -28,6 +28,7 @@ import pandas as pd
 from cosim import batch, jsonio
 from cosim.analyses import grindability, mwd
 from cosim.errors import ValidationError
+from cosim.numerics import power
 
 
 def perturbed_origins(x: pd.Series, dx: float, rng: np.random.Generator) -> pd.Series:
@@ -52,7 +53,8 @@ def _mwd_point(*, dx: float, seed: int, times, torque, stays, origins, beta_true
                fit_scale: bool, k_cr) -> dict:
     """beta_fit for one (dx, seed) of the sweep (one task of its batch)."""
     rng = np.random.default_rng(seed)
-    signals = [profile(perturbed_origins(x, dx, rng).to_numpy()) ** beta_true
+    signals = [power(np.asarray(profile(perturbed_origins(x, dx, rng).to_numpy()),
+                                dtype=np.float64), float(beta_true))
                for x, profile in origins.values()]
     index = np.concatenate([x.index.to_numpy() for x, _ in origins.values()])
     survey = pd.Series(np.concatenate(signals), index=index)

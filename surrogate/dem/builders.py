@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from cosim.numerics import cbrt
 from surrogate.dem.config import PACKING_FRACTION, DemConfig
 from surrogate.dem.emitter import mean_particle_mass
 from surrogate.dem.simulation import Dem
@@ -96,7 +97,7 @@ def packed_pile(cfg: DemConfig, n_particles: int, seed: int = 0, angle_deg: floa
     gap = 1e-3
     row_pitch = cfg.diameter_max + gap
     slope = math.tan(math.radians(angle_deg))
-    diameters = np.cbrt(rng.uniform(cfg.diameter_min ** 3, cfg.diameter_max ** 3, n_particles))
+    diameters = cbrt(rng.uniform(cfg.diameter_min ** 3, cfg.diameter_max ** 3, n_particles))
     height = pile_height(cfg, n_particles, angle_deg)
     while True:
         xs, ys, used = [], [], 0

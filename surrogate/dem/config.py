@@ -58,6 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cosim.errors import ValidationError
+from cosim.numerics import cbrt, power
 
 GRAVITY = 9.81
 """Gravitational acceleration [m/s^2], along -y."""
@@ -329,11 +330,11 @@ class DemConfig:
     # ----------------------------------------------------------- derived
     def sphere_mass(self, diameter):
         """Mass [kg] of a disk of ``diameter`` [m]: a sphere of ``density``."""
-        return self.density * math.pi / 6.0 * np.asarray(diameter, dtype=np.float64) ** 3
+        return self.density * math.pi / 6.0 * power(np.asarray(diameter, dtype=np.float64), 3.0)
 
     def diameter_of_mass(self, mass):
         """Diameter [m] of a sphere of ``mass`` [kg], clipped to the size range."""
-        d = np.cbrt(6.0 * np.asarray(mass, dtype=np.float64) / (math.pi * self.density))
+        d = cbrt(6.0 * np.asarray(mass, dtype=np.float64) / (math.pi * self.density))
         return np.clip(d, self.diameter_min, self.diameter_max)
 
     @property
