@@ -17,8 +17,8 @@ from minetwin.commands.sweep import parse_setting
 
 # parse_setting is a real function of the project that refuses malformed input:
 # "no_equals_sign" is the deliberately failing run
-TEXTS = ["sources.left.grade=0.2,0.3", "no_equals_sign", "trucks.0.speed_m_s=6,8,10",
-         "stockpile.model=fifo,mixing"]
+TEXTS = ["assets.left.grade=0.2,0.3", "no_equals_sign",
+         "assets.trucks.trucks.0.speed_m_s=6,8,10", "assets.stockpile.model=fifo,mixing"]
 
 
 def _tasks():
@@ -38,8 +38,8 @@ def test_records_in_task_order_with_any_number_of_workers_and_failures_recorded(
     assert _outcome(results[0]) == _outcome(results[1])
     records = results[0]
     assert [r["name"] for r in records] == [f"parse {k}" for k in range(len(TEXTS))]
-    assert records[0]["value"] == ["sources.left.grade", [0.2, 0.3]]
-    assert records[3]["value"] == ["stockpile.model", ["fifo", "mixing"]]
+    assert records[0]["value"] == ["assets.left.grade", [0.2, 0.3]]
+    assert records[3]["value"] == ["assets.stockpile.model", ["fifo", "mixing"]]
     failed = records[1]
     assert failed["status"] == "failed" and "ValidationError" in failed["error"]
     assert "--set" in failed["error"]
@@ -83,8 +83,8 @@ def test_the_key_is_the_content_not_the_name_or_order():
     (["--executor", "ray"], "--address"),
     (["--address", "127.0.0.1:1"], "--address"),
     (["--seeds", "0"], "--seeds"),
-    (["--set", "sources.left.nothing=1,2"], "--set"),
-    (["--set", "sources.left.grade=2.5"], "--set"),
+    (["--set", "assets.left.nothing=1,2"], "at assets.left.nothing one of ["),
+    (["--set", "assets.left.grade=2.5"], "--set assets.left.grade: must be"),
 ])
 def test_sweep_refuses_bad_options_with_exit_code_2(tmp_path, options, field):
     done = subprocess.run([sys.executable, "-m", "minetwin.cli", "sweep",

@@ -37,8 +37,8 @@ from surrogate.rom import paper_design
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[1]
-SWEEP = ["examples/step_response.toml", "--set", "sources.left.length_m=300,0.5",
-         "--set", "trucks.0.start_s=0", "--seeds", "2", "--until", "10"]
+SWEEP = ["examples/step_response.toml", "--set", "assets.left.length_m=300,0.5",
+         "--set", "assets.trucks.trucks.0.start_s=0", "--seeds", "2", "--until", "10"]
 WALL_KEYS = {"wall_s", "realtime_factor", "host", "code_version", "folder"}
 
 
@@ -149,7 +149,7 @@ def test_a_sweep_with_a_failing_run_on_ray_equals_the_local_one_interrupted(clus
     for frame in tables:
         assert list(frame["status"]) == ["done", "done", "failed", "failed"]
         assert list(frame["seed"]) == [1, 2, 1, 2]
-        assert list(frame["set.sources.left.length_m"]) == [300.0, 300.0, 0.5, 0.5]
+        assert list(frame["set.assets.left.length_m"]) == [300.0, 300.0, 0.5, 0.5]
         assert frame["error"].iloc[2].startswith("CosimulationError")
         assert "ore body exhausted" in frame["error"].iloc[2]
         assert (frame["simulated_s"].iloc[:2] == 10.0).all()

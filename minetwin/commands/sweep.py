@@ -1,7 +1,7 @@
 """``minetwin sweep``: the grid of a plant scenario's settings, one batch of runs.
 
 Each ``--set KEY=V1,V2,...`` names a setting of the scenario file by its
-dotted path (``sources.left.grade``, ``trucks.0.speed_m_s``: a number picks
+dotted path (``assets.left.grade``, ``assets.trucks.trucks.0.speed_m_s``: a number picks
 an element of an array of tables) and the values it takes; the runs are every
 combination of them times ``--seeds N`` seeds (the scenario's seed, +1, ...,
 +N-1). Each run is ``minetwin simulate``'s (``cosim.scenario.run_scenario``)
@@ -52,7 +52,7 @@ def parse_setting(text: str) -> tuple[str, list]:
 
     key, sep, values = text.partition("=")
     if not sep or not key.strip() or not values.strip():
-        raise ValidationError("--set", "KEY=V1,V2,... (e.g. sources.left.grade=0.2,0.3)",
+        raise ValidationError("--set", "KEY=V1,V2,... (e.g. assets.left.grade=0.2,0.3)",
                               f"got {text!r}")
     parsed = []
     for value in values.split(","):
