@@ -255,8 +255,10 @@ class CompanionModel:
         end = 0.0
         for k, lot in enumerate(lots, start=1):
             base = f"Plant.MaterialLots.FeedLot{k}"
-            await folder.add_object(self.nid(base), self.qn(f"FeedLot{k}"),
-                                    objecttype=self.types["MaterialLotType"])
+            node = await folder.add_object(self.nid(base), self.qn(f"FeedLot{k}"),
+                                           objecttype=self.types["MaterialLotType"])
+            await node.write_attribute(ua.AttributeIds.Description, ua.DataValue(
+                ua.LocalizedText(f"lot {k} of the feed schedule (source {lot['source']})")))
             planned = float(lot["feed_rate_kg_s"]) * float(lot["duration_s"])
             for name, value, vtype in (
                     ("ID", f"FEED-{k}", S),
