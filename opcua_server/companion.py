@@ -40,7 +40,6 @@ from asyncua import ua
 
 D, U, S = ua.VariantType.Double, ua.VariantType.UInt64, ua.VariantType.String
 _MANDATORY, _OPTIONAL = True, False
-BELTS = ("CV101", "CV301")
 
 LOT_ATTRIBUTES = (
     # name, variant, unit, description
