@@ -49,6 +49,7 @@ from asyncua.server.address_space import AttributeService
 from asyncua.server.history_sql import HistorySQLite
 
 from opcua_server import sessions
+from opcua_server.companion import CompanionModel
 from opcua_server.ledger_store import LedgerStore
 from opcua_server.process import MAX_REPORT_ROWS, ExchangeRefused, PlantProcess
 from opcua_server.sessions import SessionGuard
@@ -386,6 +387,8 @@ class PlantServer:
         plant = await objects.add_object(nid("Plant"), ua.QualifiedName("Plant", idx))
         self.plant_node = plant
         await _describe(plant, "the mock 800xA plant: CV101 -> SP201 -> CV301")
+        self.companion = CompanionModel(s, idx, _eu_information, self._write)
+        await self.companion.add_types()
 
         async def var(parent, name, value, vtype, description, *, unit=None, eu_range=None,
                       dims=None, writable=None):
@@ -423,7 +426,8 @@ class PlantServer:
                  Writable(("operator",), lambda v: p.set_belt_speed(name, v))),
                 ("BinLength", b.bin_length_m, D, "length of one bin", "m", None, None, None))
 
-        cv101 = await plant.add_object(nid("Plant.CV101"), ua.QualifiedName("CV101", idx))
+        cv101 = await plant.add_object(nid("Plant.CV101"), ua.QualifiedName("CV101", idx),
+                                       objecttype=self.companion.belt_type())
         await _describe(cv101, "incoming conveyor, discharges onto SP201 (bins of the belt)")
         n1, n3 = p.cv101.n_bins, p.cv301.n_bins
         for row in belt(p.cv101, p.max_belt_speed["cv101"], "cv101") + (
@@ -444,6 +448,7 @@ class PlantServer:
             name, value, vtype, text, unit, eu_range, dims, writable = row
             await var(cv101, f"Plant.CV101.{name}", value, vtype, text, unit=unit,
                       eu_range=eu_range, dims=dims, writable=writable)
+        await self.companion.add_belt_scale("CV101", "at the head (discharge onto SP201)")
 
         sp = await plant.add_object(nid("Plant.SP201"), ua.QualifiedName("SP201", idx))
         self.sp201_node = sp
@@ -511,7 +516,8 @@ class PlantServer:
              _arg("grades", ua.ObjectIds.Double, "grade [-] per tracking id", array=True)],
             [_arg("message", ua.ObjectIds.String, "applied / already applied / refusal")])
 
-        cv301 = await plant.add_object(nid("Plant.CV301"), ua.QualifiedName("CV301", idx))
+        cv301 = await plant.add_object(nid("Plant.CV301"), ua.QualifiedName("CV301", idx),
+                                       objecttype=self.companion.belt_type())
         await _describe(cv301, "outgoing conveyor, loaded at SP201's outlet (bins of the belt)")
         for row in belt(p.cv301, p.max_belt_speed["cv301"], "cv301") + (
                 ("BinMasses", [], D, "mass per bin, loading point first", "kg", None, n3, None),
@@ -537,6 +543,8 @@ class PlantServer:
             name, value, vtype, text, unit, eu_range, dims, writable = row
             await var(cv301, f"Plant.CV301.{name}", value, vtype, text, unit=unit,
                       eu_range=eu_range, dims=dims, writable=writable)
+        await self.companion.add_belt_scale("CV301", "at the loading point (outflow of SP201)")
+        await self.companion.add_feed_lots(plant, p.lots)
 
         etype = await s.nodes.base_event_type.add_object_type(
             nid("BinDischargedEventType"), ua.QualifiedName("BinDischargedEventType", idx))
@@ -691,6 +699,7 @@ class PlantServer:
             for belt, totalizer in (("cv101", p.mass_in_kg), ("cv301", p.mass_out_kg)):
                 await w(f"Plant.{belt.upper()}.MassFlow", p.mass_flow(belt), D)
                 await w(f"Plant.{belt.upper()}.Totalizer", totalizer, D)
+            await self.companion.publish(p)
         # the clock last: a client that reads time T in one Read also reads every
         # record discharged up to T (writes of historized values may yield between)
         await w("Plant.SimulationTime", p.time, D)
