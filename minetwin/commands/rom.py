@@ -130,6 +130,7 @@ def run_evaluate(args) -> int:
                                      "speedup_vs_dem", "grade_error", "hardness_error",
                                      "feed_prediction_error", "targets")}
     shown["scenarios"] = {name: {k: s[k] for k in ("tracking_error",
+                                                    "tracking_error_spread", "dem_replicas",
                                                     "tracking_error_dem_noise_floor",
                                                     "velocity_field_rel_error",
                                                     "velocity_field_rel_error_dem_noise_floor",

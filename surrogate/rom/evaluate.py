@@ -16,6 +16,8 @@ Data directory layout (written by ``build_data``)::
     <heldout>/emissions.npz  every particle the inlet receives: time, id, mass, ...
     <heldout>/dem.npz        reference DEM: outflow, fields per second, wall time
     <heldout>/dem_perturbed.npz  the same with positions moved by 1e-6 m
+    <heldout>/dem_replica<k>.npz further replicas, moved by 1e-6 m in other
+                             directions (``DEM_REPLICAS`` runs in all)
     <heldout>/dem_dt<f>.npz  the DEM at f x its stable step (speed-vs-accuracy
                              chart; a blown-up run: ``unstable``, when, why)
 
@@ -44,7 +46,13 @@ from surrogate.rom.grid import Grid, mean_field
 from surrogate.rom.model import RomModel
 
 PERTURBATION = 1e-6
-"""Initial-position perturbation [m] of the noise-floor DEM run."""
+"""Initial-position perturbation [m] of the noise-floor DEM runs."""
+
+DEM_REPLICAS = 3
+"""DEM runs per held-out scenario: the reference and replicas whose initial positions
+differ by ``PERTURBATION``. The DEM is chaotic, so one run is one realisation: every
+model is scored against each replica (mean and spread), and the noise floor is the
+error between replicas (every pair)."""
 
 OWNER = 1
 OUTFLOW_KEYS = ("time", "tracking_id", "mass", "grade", "hardness")
@@ -127,7 +135,8 @@ def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
             Dem.load_checkpoint(piles[scenario.fill]).save_checkpoint(initial)
         if not (heldout / "emissions.npz").exists():
             _write_emissions(heldout, Dem.load_checkpoint(initial), scenario, seed + 100 * k)
-        runs = [("dem", 0.0, 1.0), ("dem_perturbed", PERTURBATION, 1.0)]
+        runs = [(name, PERTURBATION if k else 0.0, 1.0)
+                for k, name in enumerate(replica_names(DEM_REPLICAS))]
         if scenario.name in dt_ladder_scenarios:  # the speed-vs-accuracy chart's DEM ladder
             runs += [(f"dem_dt{f:g}", 0.0, f) for f in reference_dt_factors]
         jobs += [(_run_heldout_dem, {"heldout": heldout, "name": name, "grid": grid,
@@ -193,8 +202,11 @@ def _run_heldout_dem(heldout: Path, name: str, grid: Grid, perturbation: float,
     dem = Dem.load_checkpoint(heldout / "initial.npz")
     if dt_factor != 1.0:
         dem.set_dt(dem.stable_dt * dt_factor, force=True)
-    if perturbation:
-        angle = np.random.default_rng(seed + 11).uniform(0, 2 * np.pi, dem.n)
+    if perturbation:  # each replica moved in directions of its own
+        names = replica_names(DEM_REPLICAS)
+        replica = names.index(name) if name in names else 1
+        angle = np.random.default_rng(seed + 11 + 1000 * (replica - 1)).uniform(
+            0, 2 * np.pi, dem.n)
         dem.pos = dem.pos + perturbation * np.column_stack((np.cos(angle), np.sin(angle)))
     emissions = dict(np.load(heldout / "emissions.npz"))
     steps = int(round(float(emissions["duration"]) / doe.CONTROL_STEP))
@@ -238,6 +250,52 @@ def _run_heldout_dem(heldout: Path, name: str, grid: Grid, perturbation: float,
                            for s in bulk[:len(times)]]}
     np.savez_compressed(heldout / f"{name}.npz", **common, unstable=np.array(0),
                         **{f"field_{k}": np.array(v) for k, v in fields.items()})
+
+
+def replica_names(count: int) -> list[str]:
+    """The DEM runs of a held-out scenario: the reference ``dem``, then
+    ``dem_perturbed`` and ``dem_replica<k>`` (files ``<name>.npz``)."""
+    return ["dem", "dem_perturbed", *(f"dem_replica{k}" for k in range(2, count))][:count]
+
+
+def stable_replicas(heldout: Path) -> list[dict]:
+    """The held-out scenario's DEM replicas on disk that did not blow up, in order."""
+    runs = [load_run(heldout / f"{name}.npz") for name in replica_names(DEM_REPLICAS)
+            if (heldout / f"{name}.npz").is_file()]
+    return [run for run in runs if not int(run.get("unstable", 0))]
+
+
+def _spread(values: list[float]) -> dict:
+    values = np.asarray(values, dtype=np.float64)
+    return {"mean": float(values.mean()), "min": float(values.min()),
+            "max": float(values.max()),
+            "std": float(values.std(ddof=1)) if values.size > 1 else 0.0,
+            "n": int(values.size)}
+
+
+def ensemble_score(outflow: dict, references: list[dict], t0: float, t1: float) -> dict:
+    """``score`` against each DEM replica: the mean of each error, and the tracking
+    error's spread (mean, min, max, std, n)."""
+    scores = [score(outflow, reference, t0, t1) for reference in references]
+    out = {key: float(np.mean([s[key] for s in scores]))
+           for key in ("tracking_error", "grade_error", "hardness_error")}
+    out["tracking_error_spread"] = _spread([s["tracking_error"] for s in scores])
+    return out
+
+
+def noise_floor(references: list[dict], t0: float, t1: float) -> dict:
+    """The errors between the DEM replicas, every pair once (``ensemble_score``'s keys)."""
+    if len(references) < 2:
+        from cosim.errors import ValidationError
+
+        raise ValidationError("references", "at least 2 DEM replicas",
+                              f"got {len(references)}")
+    pairs = [score(references[j], references[i], t0, t1)
+             for i in range(len(references)) for j in range(i + 1, len(references))]
+    out = {key: float(np.mean([p[key] for p in pairs]))
+           for key in ("tracking_error", "grade_error", "hardness_error")}
+    out["tracking_error_spread"] = _spread([p["tracking_error"] for p in pairs])
+    return out
 
 
 def scenario_duration(heldout: Path) -> float:
@@ -437,14 +495,28 @@ def heldout_scenarios(directory) -> list[dict]:
 
 
 def evaluate_scenario(model: RomModel, heldout: Path, progress=None, rom_options=None) -> dict:
-    """Score FIFO, mixing and the ROM against the DEM run in ``heldout``."""
-    dem = load_run(heldout / "dem.npz")
-    perturbed = load_run(heldout / "dem_perturbed.npz")
+    """Score FIFO, mixing and the ROM against every DEM replica in ``heldout``.
+
+    ``tracking_error``, ``grade_error`` and ``hardness_error`` are the means over the
+    replicas, ``tracking_error_spread`` the mean, min, max, standard deviation and
+    count of the tracking error; the noise floor is the same error between every pair
+    of replicas. The feed prediction and the velocity field are scored against the
+    reference ``dem``."""
+    replicas = stable_replicas(heldout)
+    if len(replicas) < 2:
+        from cosim.errors import ValidationError
+
+        raise ValidationError("heldout", f"at least 2 stable DEM replicas in {heldout}",
+                              f"found {len(replicas)}; rerun `minetwin rom evaluate` to make "
+                              "them")
+    dem, perturbed = replicas[0], replicas[1]
     t0 = float(dem["t0"])
     t1 = t0 + scenario_duration(heldout)
-    reference = outflow_of(dem)
+    references = [outflow_of(run) for run in replicas]
+    reference = references[0]
     summary = {"tracking_error": {}, "grade_error": {}, "hardness_error": {},
-               "wall_s_per_simulated_s": {}, "feed_prediction_error": {}}
+               "tracking_error_spread": {}, "wall_s_per_simulated_s": {},
+               "feed_prediction_error": {}, "dem_replicas": len(replicas)}
     for name in ("fifo", "mixing", "rom"):
         _say(progress, f"held-out run {heldout.name}: {name}")
         if name == "rom":  # steady-state timing: load the compiled kernels first
@@ -457,13 +529,15 @@ def evaluate_scenario(model: RomModel, heldout: Path, progress=None, rom_options
                                              on_step=_feed_forecaster(forecasts, dem))
         if name == "rom":
             summary["rom_out_of_training_range"] = sorted(storage.out_of_range.values())
-        scores = score(outflow, reference, t0, t1)
-        for key, value in scores.items():
-            summary[key][name] = value
+        scores = ensemble_score(outflow, references, t0, t1)
+        for key in ("tracking_error", "grade_error", "hardness_error"):
+            summary[key][name] = scores[key]
+        summary["tracking_error_spread"][name] = scores["tracking_error_spread"]
         summary["wall_s_per_simulated_s"][name] = wall / (t1 - t0)
         summary["feed_prediction_error"][name] = _forecast_error(forecasts, reference)
-    floor = score(outflow_of(perturbed), reference, t0, t1)
+    floor = noise_floor(references, t0, t1)
     summary["tracking_error_dem_noise_floor"] = floor["tracking_error"]
+    summary["tracking_error_spread"]["dem_noise_floor"] = floor["tracking_error_spread"]
     summary["grade_error"]["dem_noise_floor"] = floor["grade_error"]
     summary["hardness_error"]["dem_noise_floor"] = floor["hardness_error"]
     summary["wall_s_per_simulated_s"]["dem"] = float(dem["wall_s"]) / (t1 - t0)
