@@ -58,6 +58,10 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
                        sp["max_discharge_rate_kg_s"], unit="kg/s")
     check_finite_range("sp201.discharge_start_s", sp.get("discharge_start_s", 0.0), 0.0,
                        unit="s")
+    check_finite_range("sp201.initial_inventory_kg", sp.get("initial_inventory_kg", 0.0), 0.0,
+                       5.0e6, unit="kg")
+    check_finite_range("sp201.initial_lot_kg", sp.get("initial_lot_kg", 15000.0), 0.0,
+                       5.0e6, low_open=True, unit="kg")
     _positive(config["server"], "tick_s", "server")
     lots = config["feed"].get("lots", [])
     if not lots:

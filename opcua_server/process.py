@@ -170,6 +170,8 @@ class PlantProcess:
         self.setpoint_changes: list[tuple[float, float]] = [(0.0, self.discharge_rate_setpoint)]
         self.lots = config["feed"]["lots"]
         self._lot_ends = np.cumsum([float(lot["duration_s"]) for lot in self.lots])
+        self._initial_inventory_kg = float(sp.get("initial_inventory_kg", 0.0))
+        self._initial_lot_kg = float(sp.get("initial_lot_kg", 15000.0))
         self.next_tracking_id = int(config["feed"]["first_tracking_id"])
         self.time = 0.0
         # inbound ledger
@@ -220,13 +222,42 @@ class PlantProcess:
         belt.source[0] = int(lot["source"])
         self.next_tracking_id += 1
 
+    def _initial_inventory(self) -> list[InboundRecord]:
+        """What SP201 holds when the plant starts (``sp201.initial_inventory_kg``): earlier
+        production, in records of CV101's bin mass at t = 0, through the same loss-free
+        exchange as every bin, so the audit accounts for it. It comes in lots of
+        ``sp201.initial_lot_kg`` taken from the feed schedule's lots in turn (their
+        grades, hardness and sources), so a pile starts with layers a plot can tell
+        apart. A restored ledger already has it."""
+        total = self._initial_inventory_kg
+        self._initial_inventory_kg = 0.0
+        if total <= 0 or self.last_sequence > 0 or self.time > 0:
+            return []
+        belt = self.cv101
+        lot0 = self.lots[0]
+        bin_kg = float(lot0["feed_rate_kg_s"]) * belt.bin_length_m / max(belt.speed_m_s, 1e-9)
+        count = int(np.ceil(total / bin_kg))
+        bins_per_lot = max(int(round(self._initial_lot_kg / bin_kg)), 1)
+        records = []
+        for k in range(count):
+            lot = self.lots[(k // bins_per_lot) % len(self.lots)]
+            mass = min(bin_kg, total - k * bin_kg)
+            head = {"tracking_id": self.next_tracking_id, "mass": mass,
+                    "grade": float(lot["grade"]), "hardness": float(lot["hardness"]),
+                    "source": int(lot["source"])}
+            self.next_tracking_id += 1
+            records.append(self._discharge(head, 0.0))
+        self.revision += 1
+        return records
+
     # --------------------------------------------------------------- advance
     def advance(self, dt: float) -> list[InboundRecord]:
-        """Advance the plant ``dt`` [s]; return the new inbound records."""
+        """Advance the plant ``dt`` [s]; return the new inbound records (at the first
+        call of a new plant, with its initial inventory first)."""
         dt = float(dt)
         if not np.isfinite(dt) or dt < 0:
             raise ValidationError("dt", "finite and >= 0 s", f"got {dt!r}")
-        new = []
+        new = self._initial_inventory() if self._initial_inventory_kg > 0 else []
         belt = self.cv101
         offset = belt.offset_m
         for k in range(belt.shifts(dt)):

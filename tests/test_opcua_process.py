@@ -223,3 +223,47 @@ def test_a_ledger_file_that_is_not_sqlite_is_a_clear_error(tmp_path):
     path.write_text("not a database\n" * 100)
     with pytest.raises(ValidationError, match=f"ledger: .*{path}"):
         LedgerStore(path)
+
+
+def test_an_initial_inventory_comes_in_at_the_start_through_the_same_exchange():
+    """sp201.initial_inventory_kg: 30 t of earlier production as CV101 bins at t = 0, in
+    lots cycling through the feed schedule, once; the stockpile that takes them and
+    then runs keeps every kilogram and id (audit)."""
+    config = load_config(overrides={"sp201": {"initial_inventory_kg": 30000.0,
+                                              "initial_lot_kg": 5000.0}})
+    process = PlantProcess(config)
+    first = process.advance(1.0)
+    bin_kg = config["feed"]["lots"][0]["feed_rate_kg_s"]  # 2 m bins at 2 m/s: one second
+    assert len(first) == 120 and all(r.time_s == 0.0 for r in first)
+    assert math.isclose(sum(r.mass_kg for r in first), 30000.0, rel_tol=1e-12)
+    assert all(r.mass_kg == bin_kg for r in first)
+    lots = config["feed"]["lots"]
+    grades = [r.grade for r in first]
+    assert grades[:20] == [lots[0]["grade"]] * 20 and grades[20:40] == [lots[1]["grade"]] * 20
+    assert [r.hardness for r in first[40:60]] == [lots[2]["hardness"]] * 20
+    assert len({r.tracking_id for r in first}) == 120
+    assert not any(r.time_s == 0.0 for r in process.advance(30.0))   # once only
+    asset = StockpileAsset("fifo", seed=1)
+    asset.set_discharge_rate(process.discharge_rate_setpoint)
+    for r in first + process.pending[len(first):]:
+        asset.receive_bin(r.tracking_id, r.mass_kg, r.grade, r.hardness, r.source)
+    out = asset.step(60.0)
+    process.acknowledge(process.last_sequence)
+    process.report_outflow(1, out["tracking_ids"], out["masses"], out["grades"])
+    summary = {"held": {str(k): v for k, v in asset.held_by_tracking_id().items()}}
+    result = audit(process.ledger(), summary)
+    assert result["tracking_ids_lost"] == result["tracking_ids_duplicated"] == 0
+    assert result["mass_held_kg"] > 20000.0 and result["mass_balance_rel_error"] < 1e-12
+    # a plant restored from its ledger does not take the inventory in again
+    restored = PlantProcess(config)
+    restored.restore(process.state(), list(process.pending), [], [])
+    before = restored.last_sequence
+    after = restored.advance(1.0)
+    assert all(r.time_s > 0 for r in after) and restored.last_sequence == before + len(after)
+
+
+def test_a_bad_initial_inventory_is_refused_by_name():
+    with pytest.raises(ValidationError, match="sp201.initial_inventory_kg"):
+        load_config(overrides={"sp201": {"initial_inventory_kg": -1.0}})
+    with pytest.raises(ValidationError, match="sp201.initial_lot_kg"):
+        load_config(overrides={"sp201": {"initial_lot_kg": 0.0}})
