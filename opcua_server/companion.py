@@ -38,6 +38,8 @@ from typing import Awaitable, Callable
 
 from asyncua import ua
 
+from opcua_server.node_attributes import read_only_variable
+
 D, U, S = ua.VariantType.Double, ua.VariantType.UInt64, ua.VariantType.String
 _MANDATORY, _OPTIONAL = True, False
 
@@ -189,14 +191,7 @@ class CompanionModel:
         item.TypeDefinition = ua.NodeId(
             ua.ObjectIds.PropertyType if prop else
             ua.ObjectIds.AnalogUnitType if unit else ua.ObjectIds.BaseDataVariableType)
-        attrs = ua.VariableAttributes()
-        attrs.DisplayName = ua.LocalizedText(name)
-        attrs.Description = ua.LocalizedText(text)
-        attrs.DataType = ua.NodeId(getattr(ua.ObjectIds, vtype.name))
-        attrs.Value = ua.Variant(value, vtype)
-        attrs.ValueRank = ua.ValueRank.Scalar if dims is None else ua.ValueRank.OneDimension
-        attrs.ArrayDimensions = None if dims is None else [int(dims)]
-        attrs.AccessLevel = attrs.UserAccessLevel = ua.AccessLevel.CurrentRead.mask
+        attrs = read_only_variable(name, text, value, vtype, dims)
         item.NodeAttributes = attrs
         node = await self._add(item, mandatory)
         if unit is not None:

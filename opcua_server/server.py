@@ -51,6 +51,7 @@ from asyncua.server.history_sql import HistorySQLite
 from opcua_server import sessions
 from opcua_server.companion import CompanionModel
 from opcua_server.ledger_store import LedgerStore
+from opcua_server.node_attributes import read_only_variable
 from opcua_server.process import MAX_REPORT_ROWS, ExchangeRefused, PlantProcess
 from opcua_server.sessions import SessionGuard
 from opcua_protocol import APPLICATION_URI_SERVER
@@ -623,14 +624,7 @@ class PlantServer:
         item.TypeDefinition = ua.NodeId(
             ua.ObjectIds.AnalogItemType if eu_range is not None else
             ua.ObjectIds.AnalogUnitType if unit is not None else ua.ObjectIds.BaseDataVariableType)
-        attrs = ua.VariableAttributes()
-        attrs.DisplayName = ua.LocalizedText(name)
-        attrs.Description = ua.LocalizedText(description)
-        attrs.DataType = ua.NodeId(getattr(ua.ObjectIds, vtype.name))
-        attrs.Value = ua.Variant(value, vtype)
-        attrs.ValueRank = ua.ValueRank.Scalar if dims is None else ua.ValueRank.OneDimension
-        attrs.ArrayDimensions = None if dims is None else [int(dims)]
-        attrs.AccessLevel = attrs.UserAccessLevel = ua.AccessLevel.CurrentRead.mask
+        attrs = read_only_variable(name, description, value, vtype, dims)
         item.NodeAttributes = attrs
         result = (await self.server.iserver.isession.add_nodes([item]))[0]
         result.StatusCode.check()

@@ -2,31 +2,15 @@
 // mock 800xA server over Basic256Sha256 SignAndEncrypt.
 // Usage: node node_opcua_client.js CONFIG.json   -> prints one JSON result line.
 const fs = require("fs");
-const path = require("path");
+const { secureClient } = require("./secure_client");
 const {
-  OPCUAClient, MessageSecurityMode, SecurityPolicy, AttributeIds, DataType, UserTokenType,
-  TimestampsToReturn, ClientSubscription, ClientMonitoredItem, constructEventFilter,
-  OPCUACertificateManager,
+  AttributeIds, DataType, UserTokenType, TimestampsToReturn, ClientSubscription,
+  ClientMonitoredItem, constructEventFilter,
 } = require("node-opcua");
 
 async function main() {
   const cfg = JSON.parse(fs.readFileSync(process.argv[2], "utf8"));
-  const certificateManager = new OPCUACertificateManager({
-    rootFolder: path.join(cfg.workdir, "node_pki"),
-    automaticallyAcceptUnknownCertificate: true,
-  });
-  await certificateManager.initialize();
-  const client = OPCUAClient.create({
-    applicationName: "node-opcua interop",
-    applicationUri: cfg.application_uri,
-    securityMode: MessageSecurityMode.SignAndEncrypt,
-    securityPolicy: SecurityPolicy.Basic256Sha256,
-    certificateFile: cfg.certificate_pem,
-    privateKeyFile: cfg.private_key_pem,
-    clientCertificateManager: certificateManager,
-    endpointMustExist: false,
-    connectionStrategy: { maxRetry: 2, initialDelay: 300, maxDelay: 1000 },
-  });
+  const client = await secureClient(cfg, "node-opcua interop");
   const result = {};
   await client.connect(cfg.url);
   const ns = cfg.namespace_index;
@@ -78,13 +62,7 @@ async function main() {
   result.operator_write_out_of_range = await write(operator, 5000.0);
   // one session per secure channel (the server refuses a second one): the viewer
   // connects with its own client
-  const viewerClient = OPCUAClient.create({
-    applicationName: "node-opcua interop viewer", applicationUri: cfg.application_uri,
-    securityMode: MessageSecurityMode.SignAndEncrypt, securityPolicy: SecurityPolicy.Basic256Sha256,
-    certificateFile: cfg.certificate_pem, privateKeyFile: cfg.private_key_pem,
-    clientCertificateManager: certificateManager, endpointMustExist: false,
-    connectionStrategy: { maxRetry: 2, initialDelay: 300, maxDelay: 1000 },
-  });
+  const viewerClient = await secureClient(cfg, "node-opcua interop viewer");
   await viewerClient.connect(cfg.url);
   const viewer = await viewerClient.createSession({
     type: UserTokenType.UserName, userName: "viewer", password: cfg.viewer_password });

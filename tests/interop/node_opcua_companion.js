@@ -3,30 +3,12 @@
 // path and the type of a feed lot.
 // Usage: node node_opcua_companion.js CONFIG.json   -> prints one JSON result line.
 const fs = require("fs");
-const path = require("path");
-const {
-  OPCUAClient, MessageSecurityMode, SecurityPolicy, AttributeIds, UserTokenType,
-  BrowseDirection, OPCUACertificateManager, makeBrowsePath,
-} = require("node-opcua");
+const { secureClient } = require("./secure_client");
+const { AttributeIds, UserTokenType, BrowseDirection, makeBrowsePath } = require("node-opcua");
 
 async function main() {
   const cfg = JSON.parse(fs.readFileSync(process.argv[2], "utf8"));
-  const certificateManager = new OPCUACertificateManager({
-    rootFolder: path.join(cfg.workdir, "node_pki"),
-    automaticallyAcceptUnknownCertificate: true,
-  });
-  await certificateManager.initialize();
-  const client = OPCUAClient.create({
-    applicationName: "node-opcua companion check",
-    applicationUri: cfg.application_uri,
-    securityMode: MessageSecurityMode.SignAndEncrypt,
-    securityPolicy: SecurityPolicy.Basic256Sha256,
-    certificateFile: cfg.certificate_pem,
-    privateKeyFile: cfg.private_key_pem,
-    clientCertificateManager: certificateManager,
-    endpointMustExist: false,
-    connectionStrategy: { maxRetry: 2, initialDelay: 300, maxDelay: 1000 },
-  });
+  const client = await secureClient(cfg, "node-opcua companion check");
   await client.connect(cfg.url);
   const ns = cfg.namespace_index;
   const id = (name) => `ns=${ns};s=${name}`;
