@@ -50,6 +50,17 @@ def _install_plugin(tmp_path: Path) -> dict:
     return {**os.environ, "PYTHONPATH": str(site)}
 
 
+def _simulate(scenario: Path, out: Path, env: dict) -> dict:
+    """``minetwin simulate`` 120 s with the plug-in seen; its summary (mass balanced)."""
+    result = subprocess.run([MINETWIN, "simulate", str(scenario), "--until", "120",
+                             "--out", str(out), "--quiet"], capture_output=True, text=True,
+                            env=env, timeout=300)
+    assert result.returncode == 0, result.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["mass_balance_rel_error"] < 1e-12
+    return summary
+
+
 def test_a_plugin_asset_kind_runs_in_a_scenario(tmp_path):
     scenario = _scenario(tmp_path / "with_surge_bin.toml")
     refused = subprocess.run([MINETWIN, "simulate", str(scenario), "--until", "120",
@@ -59,14 +70,8 @@ def test_a_plugin_asset_kind_runs_in_a_scenario(tmp_path):
     assert "assets.surge_bin.kind: must be one of ['belt', 'crusher', 'mill', 'screen', " \
            "'source', 'stockpile', 'truck_fleet']" in refused.stderr
 
-    env = _install_plugin(tmp_path)
     out = tmp_path / "run"
-    result = subprocess.run([MINETWIN, "simulate", str(scenario), "--until", "120",
-                             "--out", str(out), "--quiet"], capture_output=True, text=True,
-                            env=env, timeout=300)
-    assert result.returncode == 0, result.stderr
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["mass_balance_rel_error"] < 1e-12
+    summary = _simulate(scenario, out, _install_plugin(tmp_path))
     with sqlite3.connect(out / "events.sqlite") as db:
         times = dict(db.execute(
             "SELECT e.asset, MIN(e.time) FROM events e WHERE e.asset IN ('surge_bin', "
@@ -119,11 +124,5 @@ def test_a_plugin_fmu_role_and_fmu_file_are_found_and_used(tmp_path):
                             text=True, env=env, timeout=120)
     assert misfit.returncode == 1 and "variable 'increment'" in misfit.stderr
 
-    out = tmp_path / "run"
-    result = subprocess.run([MINETWIN, "simulate", str(scenario), "--until", "120",
-                             "--out", str(out), "--quiet"], capture_output=True, text=True,
-                            env=env, timeout=300)
-    assert result.returncode == 0, result.stderr
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["mass_balance_rel_error"] < 1e-12
+    summary = _simulate(scenario, tmp_path / "run", env)
     assert summary["fmus"]["crusher_fmu"].endswith("pebble_crusher.fmu")
