@@ -56,7 +56,7 @@ if REPRODUCIBLE:
 
 import math  # noqa: E402
 
-from numba import njit, vectorize  # noqa: E402
+from numba import njit  # noqa: E402
 
 HOT_JIT = {"cache": True, "fastmath": not REPRODUCIBLE, "error_model": "numpy"}
 """numba options of the chaotic hot kernels (DEM, surface DEM): fastmath lets LLVM
@@ -118,36 +118,67 @@ def rows_times_transpose(rows, matrix) -> np.ndarray:
     return out[0] if single else out
 
 
-# Elementwise exp, log and power that round the same on every x86-64 CPU: a compiled
-# loop over the C library's scalar functions (no fastmath, so nothing is reassociated),
-# not numpy's loops chosen by the instruction set (module docstring).
-@vectorize(["float64(float64)"], cache=True)
+# Elementwise exp, log, power and cbrt that round the same on every x86-64 CPU: compiled
+# loops over the C library's scalar functions (no fastmath, so nothing is reassociated),
+# not numpy's loops chosen by the instruction set (module docstring). njit, not
+# vectorize: compiled (or loaded from numba's cache) at the first call, not at import.
+@njit(cache=True)
+def _exp(x, out):
+    for i in range(x.size):
+        out[i] = math.exp(x[i])
+
+
+@njit(cache=True)
+def _log(x, out):
+    for i in range(x.size):
+        v = x[i]
+        out[i] = math.log(v) if v > 0.0 else (-math.inf if v == 0.0 else math.nan)
+
+
+@njit(cache=True)
+def _power(base, exponent, out):
+    for i in range(base.size):
+        b, e = base[i], exponent[i]
+        if b < 0.0 and e != math.floor(e):
+            out[i] = math.nan
+        elif b == 0.0 and e < 0.0:
+            out[i] = math.inf
+        else:
+            out[i] = math.pow(b, e)
+
+
+@njit(cache=True)
+def _cbrt(x, out):
+    for i in range(x.size):
+        out[i] = np.cbrt(x[i])  # numba lowers this to the C library's cbrt
+
+
+def _elementwise(kernel, *arrays):
+    arrays = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in arrays))
+    flat = [np.ascontiguousarray(a).ravel() for a in arrays]
+    out = np.empty(flat[0].size)
+    kernel(*flat, out)
+    out = out.reshape(arrays[0].shape)
+    return out if out.ndim else float(out)
+
+
 def exp(x):
     """e**x, elementwise (numpy.exp's meaning; the same bits on every CPU)."""
-    return math.exp(x)
+    return _elementwise(_exp, x)
 
 
-@vectorize(["float64(float64)"], cache=True)
 def log(x):
     """Natural logarithm, elementwise (numpy.log's meaning: -inf at 0, nan below;
     the same bits on every CPU)."""
-    if x > 0.0:
-        return math.log(x)
-    return -math.inf if x == 0.0 else math.nan
+    return _elementwise(_log, x)
 
 
-@vectorize(["float64(float64, float64)"], cache=True)
 def power(base, exponent):
-    """base**exponent, elementwise (numpy.power's meaning for floats; the same bits
-    on every CPU)."""
-    if base < 0.0 and exponent != math.floor(exponent):
-        return math.nan
-    if base == 0.0 and exponent < 0.0:
-        return math.inf
-    return math.pow(base, exponent)
+    """base**exponent, elementwise and broadcast (numpy.power's meaning for floats; the
+    same bits on every CPU)."""
+    return _elementwise(_power, base, exponent)
 
 
-@vectorize(["float64(float64)"], cache=True)
 def cbrt(x):
     """Cube root, elementwise (numpy.cbrt's meaning; the same bits on every CPU)."""
-    return np.cbrt(x)  # numba lowers this to the C library's cbrt
+    return _elementwise(_cbrt, x)

@@ -21,6 +21,8 @@ Two cumulative conventions appear in the field and both are offered:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from cosim.errors import ValidationError
@@ -32,10 +34,11 @@ N_CLASSES = 16
 RATIO = 10.0 ** (1.0 / 3.0)
 """Ratio r between neighbouring class diameters."""
 
-DIAMETERS = 1e-5 * power(RATIO, np.arange(N_CLASSES, dtype=np.float64))
+# the C library's pow and log (as cosim.numerics'), without compiling anything at import
+DIAMETERS = 1e-5 * np.array([RATIO ** float(k) for k in range(N_CLASSES)])
 """Class diameters d_k [m] (upper edge of class k)."""
 
-_LOG_EDGES = log(np.concatenate(([DIAMETERS[0] / RATIO], DIAMETERS)))
+_LOG_EDGES = np.array([math.log(d) for d in np.concatenate(([DIAMETERS[0] / RATIO], DIAMETERS))])
 
 
 def class_of(diameter: float) -> int:
