@@ -29,7 +29,6 @@ the paper's throughput). The summary has each scenario's scores under
 
 from __future__ import annotations
 
-import json
 import time
 import warnings
 from dataclasses import asdict
@@ -613,8 +612,9 @@ def evaluate(model: RomModel, directory, progress=None, rom_options=None) -> dic
 
 
 def write_summary(summary: dict, out_dir) -> Path:
+    """``out_dir/summary.json``, strict JSON (a NaN is refused, not written)."""
+    from cosim import jsonio
+
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / "summary.json"
-    path.write_text(json.dumps(summary, indent=1, default=float))
-    return path
+    return jsonio.write(out_dir / "summary.json", summary, indent=1)
