@@ -39,6 +39,14 @@ demo: setup
 	  $(BIN)/python examples/monitor_demo.py --out $(OUT)/demo/monitor \
 	    --scenario examples/paper_scale.toml --speed 25 --seconds 20; \
 	else echo "demo: no monitor screenshots: /usr/bin/chromium missing (make test-prereqs)"; fi
+	@echo ""
+	@echo "demo: done. What it wrote:"
+	@echo "  $(OUT)/demo/mine/         the paper's plant, 1200 s: overview.png, summary.json,"
+	@echo "                        timeseries.parquet, events.sqlite (minetwin events summary ...)"
+	@echo "  $(OUT)/demo/integration/  mock 800xA <-> stockpile over OPC UA: report.json (ids lost or"
+	@echo "                        duplicated, mass balance, lag), stockpile_mass_grade.png, logs"
+	@echo "  $(OUT)/demo/monitor/      screenshots of the monitor beside the paper-scale plant"
+	@echo "  next: make figures (every figure, ~8 min), make test, minetwin --help"
 
 # Every figure the commands write (simulate, reproduce --quick, integration-test, dem pile,
 # reference compare), each checked against cosim.plotstyle's rules on its matplotlib artists
