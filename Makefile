@@ -42,9 +42,9 @@ demo: setup
 	@echo ""
 	@echo "demo: done. What it wrote:"
 	@echo "  $(OUT)/demo/mine/         the paper's plant, 1200 s: overview.png, summary.json,"
-	@echo "                        timeseries.parquet, events.sqlite (minetwin events summary ...)"
+	@echo "                         timeseries.parquet, events.sqlite (minetwin events summary ...)"
 	@echo "  $(OUT)/demo/integration/  mock 800xA <-> stockpile over OPC UA: report.json (ids lost or"
-	@echo "                        duplicated, mass balance, lag), stockpile_mass_grade.png, logs"
+	@echo "                         duplicated, mass balance, lag), stockpile_mass_grade.png, logs"
 	@echo "  $(OUT)/demo/monitor/      screenshots of the monitor beside the paper-scale plant"
 	@echo "  next: make figures (every figure, ~8 min), make test, minetwin --help"
 
