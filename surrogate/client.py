@@ -14,8 +14,11 @@ One *exchange cycle* (every ``cycle_s`` wall seconds, or one
    range);
 2. step the asset up to the server's time in sub-steps of at most ``dt_s``,
    applying inbound records in sequence order at their discharge times
-   (never past a record known to exist but not read yet); the outflow of
-   the cycle becomes one outbound report with the next outbound sequence
+   (never past a record known to exist but not read yet); a FIFO pile in
+   slices of at most ``slice_s``, each slice's records received together
+   and one step over it where that is exact (``advance_to``); at most
+   ``cycle_budget_s`` of wall time, the rest in the next cycles; the outflow
+   of the cycle becomes one outbound report with the next outbound sequence
    number, put in the *outbox*;
 3. write the checkpoint (asset, last applied inbound number, outbox)
    atomically: every cycle in lockstep, else at most every
