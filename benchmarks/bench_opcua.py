@@ -12,7 +12,8 @@ Passed only if nothing is lost or duplicated, the mass balances, and the
 stockpile kept up: its lag behind the plant p99 < ``MAX_LAG_P99_S`` of plant
 time, its step time p99 < the exchange cycle, and it reached the frozen
 clock within ``CATCH_UP_LIMIT_S`` after the load (``caught_up``; a lag that
-grows fails here instead of draining for ever). ``--rate`` takes several
+grows fails here instead of draining for ever, and the bins it left pending
+on the server count as lost in the audit). ``--rate`` takes several
 rates; the last line then says the highest rate that passed (where the lag
 stops being bounded).
 
@@ -26,7 +27,7 @@ above that floor at 100 bins/s; at 1,000 bins/s ``--bins-per-plant-s 100``
 (speed x10, 0.5 s of plant time per tick) is.
 
     .venv/bin/python benchmarks/bench_opcua.py [--rate 100 300 1000] [--seconds 60]
-    .venv/bin/python benchmarks/bench_opcua.py --rate 10 100 1000 --bins-per-plant-s 100
+    .venv/bin/python benchmarks/bench_opcua.py --rate 100 300 1000 --seconds 60 --bins-per-plant-s 100
 """
 
 from __future__ import annotations
