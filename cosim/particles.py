@@ -200,8 +200,10 @@ class ParticleStore:
             Block-model cell of origin, -1 for none.
         owner : int or array_like
             Owner asset index.
-        time : float
-            Current time [s], stored as ``time_in_owner``.
+        time : float or array_like
+            Time [s] each particle entered its owner, stored as
+            ``time_in_owner`` (one per particle: a batch of bins that arrived
+            at different times).
         ids : array_like, optional
             Explicit ids (e.g. particles arriving from another process);
             by default fresh ids are handed out.
@@ -226,7 +228,7 @@ class ParticleStore:
                             else self._vector("origin", origin, count))
         values["origin_block"] = _broadcast("origin_block", origin_block, (count,), np.int64)
         values["owner"] = _broadcast("owner", owner, (count,), np.int32)
-        values["time_in_owner"] = np.full(count, float(time))
+        values["time_in_owner"] = _broadcast("time", time, (count,), np.float64)
         for name, value in attributes.items():
             if name not in self._attributes:
                 raise ValidationError("attributes", f"names among {self.attribute_names}",

@@ -30,7 +30,8 @@ parameters, a model that reads a trained state from a file does it in
     leave (paper section "Predicting the properties of the mill feed").
 
 Capabilities are class attributes with defaults on ``StorageModel``
-(``has_geometry``, ``checkpointable``), read from the class, never probed.
+(``has_geometry``, ``checkpointable``, ``arrivals_join_the_tail``), read from
+the class, never probed.
 
 Models are registered through the entry-point group ``minetwin.storage``
 (``[project.entry-points."minetwin.storage"]`` in a package's pyproject: name
@@ -87,6 +88,16 @@ class StorageModel:
     """True: the model's state is plain data (numbers, numpy arrays and
     generators, containers, objects of registered or project classes), so the
     stockpile client's checkpoint can save and restore it exactly."""
+
+    arrivals_join_the_tail = False
+    """True: an arrival goes behind every held particle in the order of leaving
+    and changes nothing ahead of it (a queue: FIFO). Then, over an interval in
+    which the feeder's credit (``feeder_credit_kg`` + rate x length) stays below
+    the mass held at its start, no arrival of the interval can leave and the
+    pile never runs empty, so the interval's arrivals received together and one
+    ``step`` over it take exactly the particles that stepping to each arrival
+    in turn would (the credit's prefix of the same order): the stockpile
+    client catches up that way, one step per slice instead of per bin."""
 
     out_of_range_now: tuple[str, ...] = ()
     """Names of the inputs outside the model's range of validity at its latest
@@ -184,6 +195,7 @@ class FifoStorage(StorageModel):
 
     name = "fifo"
     checkpointable = True
+    arrivals_join_the_tail = True
 
     def __init__(self, *, rng: np.random.Generator | None = None):
         super().__init__(rng=rng)

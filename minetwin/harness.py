@@ -10,6 +10,7 @@ port and stop them (SIGTERM, then SIGKILL) in ``stop()``.
 from __future__ import annotations
 
 import asyncio
+import math
 import os
 import secrets
 import signal
@@ -176,7 +177,8 @@ class StockpileProcess(ManagedProcess):
 
 
 def drain_and_stop(server: ServerProcess, stockpile: StockpileProcess | None,
-                   timeout: float = 30.0) -> tuple[dict, dict | None]:
+                   timeout: float = 30.0, catch_up_limit: float | None = None
+                   ) -> tuple[dict, dict | None]:
     """Freeze the server's clock, let the stockpile catch up, stop both.
 
     A server started with ``until`` is not signalled: its clock freezes at
@@ -187,7 +189,9 @@ def drain_and_stop(server: ServerProcess, stockpile: StockpileProcess | None,
     more of its heartbeats (a whole exchange cycle after it: reports sent,
     records acknowledged). ``timeout`` [s of wall time] bounds each wait
     *without progress*: a stockpile that lags far behind (a loaded machine)
-    is waited for as long as its time keeps moving.
+    is waited for as long as its time keeps moving, or at most
+    ``catch_up_limit`` [s of wall time] in all if given (a benchmark: a
+    stockpile that fell behind without bound is stopped where it is).
     """
     import json
     import urllib.request
@@ -214,7 +218,9 @@ def drain_and_stop(server: ServerProcess, stockpile: StockpileProcess | None,
                 return None
 
         last, stalled_since = None, time.monotonic()
-        while stockpile.rest_url and time.monotonic() - stalled_since < timeout:
+        give_up = math.inf if catch_up_limit is None else time.monotonic() + catch_up_limit
+        while (stockpile.rest_url and time.monotonic() - stalled_since < timeout
+               and time.monotonic() < give_up):
             now = stockpile_time()
             if now is not None and now >= target - 1e-9:
                 break

@@ -14,8 +14,11 @@ One *exchange cycle* (every ``cycle_s`` wall seconds, or one
    range);
 2. step the asset up to the server's time in sub-steps of at most ``dt_s``,
    applying inbound records in sequence order at their discharge times
-   (never past a record known to exist but not read yet); the outflow of
-   the cycle becomes one outbound report with the next outbound sequence
+   (never past a record known to exist but not read yet); a FIFO pile in
+   slices of at most ``slice_s``, each slice's records received together
+   and one step over it where that is exact (``advance_to``); at most
+   ``cycle_budget_s`` of wall time, the rest in the next cycles; the outflow
+   of the cycle becomes one outbound report with the next outbound sequence
    number, put in the *outbox*;
 3. write the checkpoint (asset, last applied inbound number, outbox)
    atomically: every cycle in lockstep, else at most every
@@ -98,8 +101,13 @@ class ClientOptions:
     node_map: Path | None = None
     rest_port: int | None = None
     rest_port_file: Path | None = None
-    cycle_budget_s: float = 1.0
-    """Wall time [s] one exchange cycle may spend stepping (not in lockstep)."""
+    cycle_budget_s: float = 0.25
+    """Wall time [s] one exchange cycle may spend stepping (not in lockstep): a
+    client far behind catches up in cycles of at most this, so its session
+    stays alive and a stop (SIGTERM) is taken within about this."""
+    slice_s: float = 5.0
+    """Longest step [s of plant time] of a storage model whose arrivals join the
+    tail (FIFO), which is stepped one slice at a time (``advance_to``)."""
     checkpoint_every_s: float = 0.5
     """Least wall time [s] between two checkpoints (and so between two sends of
     the outbox and acknowledgements) outside lockstep."""
@@ -138,6 +146,7 @@ class StockpileClient:
         self._checkpointed_at = -math.inf
         self._send_now = False  # this cycle wrote a checkpoint: send and acknowledge
         self.step_times_ms: list[float] = []
+        self.largest_step_s = 0.0  # the longest single asset step [s of plant time]
         self.max_lag_s = 0.0
         self.lags_s: list[float] = []
         self.reconnects = 0
@@ -190,35 +199,36 @@ class StockpileClient:
         outside lockstep): stop stepping (short of ``target_time``) once this
         much wall time is spent, so a client far behind catches up over several
         cycles and keeps its session alive (the next cycle goes on).
+
+        A storage model whose arrivals join the tail (FIFO,
+        ``arrivals_join_the_tail``) is stepped in slices of at most ``slice_s``
+        of plant time, each slice's records received together and one step
+        over it, wherever that is exact (the feeder's credit over the slice
+        below the mass held at its start, see ``cosim.storage``); elsewhere,
+        and for every other model, in sub-steps of at most ``dt_s`` to each
+        record's discharge time in turn.
         """
-        asset = self.asset
         started = time.perf_counter()
         budget_s = budget_s if budget_s is not None else self._cycle_budget_s
         deadline = started + budget_s if budget_s is not None else math.inf
         outflow: dict[int, list[float]] = {}
-        changes = self.setpoint_changes
+        asset = self.asset
 
         def step_to(t_end: float) -> bool:
             """Step to ``t_end``; False if the wall-time budget ran out first."""
             while asset.time < t_end - 1e-12:
                 if time.perf_counter() > deadline:
                     return False
-                dt = min(self.o.dt_s, t_end - asset.time)
-                if changes:  # the setpoint in force at the asset's own plant time
-                    k = max(bisect.bisect_right(changes, (asset.time + 1e-12, math.inf)) - 1, 0)
-                    asset.set_discharge_rate(changes[k][1])
-                    if k + 1 < len(changes):
-                        dt = min(dt, changes[k + 1][0] - asset.time)
-                out = asset.step(dt)
-                for tid, m, g in zip(out["tracking_ids"].tolist(), out["masses"].tolist(),
-                                     out["grades"].tolist()):
-                    acc = outflow.setdefault(tid, [0.0, 0.0])
-                    acc[0] += m
-                    acc[1] += m * g
+                next_change = self._setpoint_in_force()
+                self._step(min(self.o.dt_s, t_end - asset.time, next_change - asset.time),
+                           outflow)
             return True
 
+        batch = asset.storage.arrivals_join_the_tail
         in_time = True
         while True:
+            if batch and self._slice(target_time, deadline, outflow):
+                continue
             nxt = self.inbox.get(self.state.last_applied + 1)
             if nxt is None:
                 if self.server_last_sequence > self.state.last_applied:
@@ -248,6 +258,61 @@ class StockpileClient:
                   "masses": masses, "grades": grades}
         self.state.outbox.append(report)
         return report
+
+    def _setpoint_in_force(self) -> float:
+        """Set the feeder to the setpoint in force at the asset's plant time;
+        return the plant time of the next change (inf if none is known)."""
+        changes, now = self.setpoint_changes, self.asset.time
+        if not changes:  # the setpoint read in the cycle applies to the whole cycle
+            return math.inf
+        k = max(bisect.bisect_right(changes, (now + 1e-12, math.inf)) - 1, 0)
+        self.asset.set_discharge_rate(changes[k][1])
+        return changes[k + 1][0] if k + 1 < len(changes) else math.inf
+
+    def _step(self, dt: float, outflow: dict) -> None:
+        """One asset step of ``dt`` [s]; its outflow added to ``outflow`` per tracking id."""
+        out = self.asset.step(dt)
+        self.largest_step_s = max(self.largest_step_s, dt)
+        for tid, m, g in zip(out["tracking_ids"].tolist(), out["masses"].tolist(),
+                             out["grades"].tolist()):
+            acc = outflow.setdefault(tid, [0.0, 0.0])
+            acc[0] += m
+            acc[1] += m * g
+
+    def _slice(self, target_time: float, deadline: float, outflow: dict) -> bool:
+        """One slice of at most ``slice_s`` towards ``target_time``: its records
+        received together, one step over it. False (nothing done) where that
+        would not be exact or allowed: the budget is spent, nothing is left to
+        step, a record of the slice exists but was not read, or the feeder's
+        credit could reach the slice's arrivals (then the records are applied
+        one by one)."""
+        asset = self.asset
+        start = asset.time
+        if start >= target_time - 1e-12 or time.perf_counter() > deadline:
+            return False
+        end = min(target_time, start + self.o.slice_s, self._setpoint_in_force())
+        if end <= start + 1e-12:
+            return False
+        records, seq = [], self.state.last_applied + 1
+        while (record := self.inbox.get(seq)) is not None and record["time"] <= end:
+            records.append(record)
+            seq += 1
+        if record is None and self.server_last_sequence >= seq:
+            return False  # an unread record may fall in the slice
+        storage = asset.storage
+        if storage.held_mass() <= storage.feeder_credit_kg + asset.discharge_rate * (end - start):
+            return False  # the feeder could reach this slice's arrivals or empty the pile
+        if records:
+            columns = {key: [r[key] for r in records]
+                       for key in ("tracking_id", "mass", "grade", "hardness", "source", "time")}
+            asset.receive_bins(np.array(columns["tracking_id"], dtype=np.uint64),
+                               columns["mass"], columns["grade"], columns["hardness"],
+                               columns["source"], np.maximum(columns["time"], start))
+            for r in records:
+                del self.inbox[r["sequence"]]
+            self.state.last_applied = records[-1]["sequence"]
+        self._step(end - start, outflow)
+        return True
 
     # ------------------------------------------------------------- OPC UA
     async def _connect(self):
@@ -575,6 +640,7 @@ class StockpileClient:
             "step_time_p99_ms": float(np.percentile(times, 99)),
             "step_time_mean_ms": float(times.mean()),
             "cycles": len(self.step_times_ms), "max_lag_s": self.max_lag_s,
+            "largest_step_s": self.largest_step_s,
             "lag_p50_s": float(np.percentile(self.lags_s, 50)) if self.lags_s else 0.0,
             "lag_p99_s": float(np.percentile(self.lags_s, 99)) if self.lags_s else 0.0,
             "first_cycle_lag_s": self.lags_s[0] if self.lags_s else 0.0,

@@ -112,7 +112,8 @@ class LotLog:
     def add(self, kind: str, time_s: float, tracking_ids, masses, grades, sources,
             counts) -> None:
         """Append one event per tracking id (arrays of equal length; ``None``
-        tracking id or source when the storage has none)."""
+        tracking id or source when the storage has none); ``time_s`` is one
+        time or one per event."""
         if kind not in EVENT_KINDS:
             raise ValueError(f"kind: must be one of {EVENT_KINDS} (got {kind!r})")
         tids, sources = np.asarray(tracking_ids), np.asarray(sources)
@@ -127,7 +128,7 @@ class LotLog:
         if sources.dtype.kind not in "iu":
             sources = np.array([-1 if s is None else int(s) for s in sources.tolist()])
         self._rows.extend(
-            time_s=np.full(k, float(time_s)), kind=np.full(k, EVENT_KINDS.index(kind)),
+            time_s=np.broadcast_to(np.asarray(time_s, dtype=np.float64), (k,)), kind=np.full(k, EVENT_KINDS.index(kind)),
             tracking_id=tids.astype(np.uint64), has_tracking_id=has,
             mass_kg=masses, grade=grades, source=sources, particle_count=counts)
         self.last_seq += k

@@ -134,6 +134,49 @@ class StockpileAsset:
                       [int(source)], [count])
         return ids
 
+    def receive_bins(self, tracking_ids, masses_kg, grades, hardness, sources,
+                     times_s) -> np.ndarray:
+        """Emit the particles of several inbound bins, each at its own time
+        ``times_s`` [s] (none before ``time``: bins that arrive during the next
+        ``step``), in the order given; return their ids.
+
+        The same particles, times and events as ``receive_bin`` per bin, in
+        one batch for the store, the storage model and the event log (no
+        per-bin Python work). All bins are validated before anything is added.
+        Only exact for a model whose arrivals join the tail, over a step the
+        feeder cannot reach them in (``cosim.storage.StorageModel``).
+        """
+        masses = check_finite_range("mass", np.asarray(masses_kg, dtype=np.float64), 0.0,
+                                    low_open=True, unit="kg")
+        check_finite_range("grade", np.asarray(grades, dtype=np.float64), 0.0, 1.0)
+        check_finite_range("hardness", np.asarray(hardness, dtype=np.float64), 0.0,
+                           low_open=True)
+        tids = np.asarray(tracking_ids)
+        if tids.size and (tids.dtype.kind not in "iu" or int(tids.min()) < 0):
+            raise ValidationError("tracking_id", "unsigned 64-bit integers", f"got {tids.min()}")
+        times = check_finite_range("times_s", np.asarray(times_s, dtype=np.float64), self.time,
+                                   unit="s")
+        if masses.size == 0:
+            return np.empty(0, dtype=np.uint64)
+        counts = np.maximum(np.ceil(masses / self.particle_mass_kg - 1e-9).astype(np.int64), 1)
+        each = np.repeat(masses / counts, counts)
+        last = np.cumsum(counts) - 1
+        # the last particle of a bin takes the rest: the bin's mass exactly
+        each[last] = masses - np.bincount(np.repeat(np.arange(masses.size), counts),
+                                          weights=each, minlength=masses.size) + each[last]
+        ids = self.particles.add(
+            mass=each, f=self.feed_f, grade=np.repeat(grades, counts),
+            hardness=np.repeat(hardness, counts), owner=STOCKPILE_OWNER,
+            time=np.repeat(times, counts),
+            tracking_id=np.repeat(tids.astype(np.uint64), counts),
+            source=np.repeat(np.asarray(sources, dtype=np.int64), counts))
+        self.storage.receive(ids, float(times[-1]))
+        self.mass_in_kg += float(masses.sum())
+        self.lots.add("in", times, tids.astype(np.uint64), masses,
+                      np.asarray(grades, dtype=np.float64), np.asarray(sources, dtype=np.int64),
+                      counts)
+        return ids
+
     # ----------------------------------------------------------------- step
     def set_discharge_rate(self, rate_kg_s: float) -> None:
         """Feeder setpoint [kg/s] in [0, 2000]."""

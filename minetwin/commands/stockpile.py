@@ -42,6 +42,12 @@ def register(subparsers) -> None:
     parser.add_argument("--cycle", type=float, default=0.1,
                         help="wall seconds between exchange cycles in real time (default 0.1)")
     parser.add_argument("--dt", type=float, default=0.5, help="largest asset step [s] (default 0.5)")
+    parser.add_argument("--slice", type=float, default=5.0,
+                        help="largest step [s] of a FIFO pile catching up, one per slice of "
+                             "bins (default 5)")
+    parser.add_argument("--cycle-budget", type=float, default=0.25,
+                        help="wall seconds a cycle may spend stepping in real time: a client "
+                             "behind catches up over several cycles (default 0.25)")
     parser.add_argument("--duration", type=float, help="stop at this simulation time [s]")
     parser.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     parser.add_argument("--particle-mass", type=float, default=100.0,
@@ -60,7 +66,7 @@ def run(args) -> int:
     storage_class(args.model, field="model")
     if not args.server.startswith("opc.tcp://"):
         raise ValidationError("server", "an opc.tcp:// URL", f"got {args.server!r}")
-    for name in ("period", "cycle", "dt"):
+    for name in ("period", "cycle", "dt", "slice", "cycle_budget"):
         value = getattr(args, name)
         if not 0 < value <= 3600:
             raise ValidationError(name, "in (0, 3600] s", f"got {value}")
@@ -90,7 +96,8 @@ def run(args) -> int:
             server_url=args.server, username=args.user, password=password, certificate=cert,
             private_key=key, server_certificate=args.server_cert, insecure=args.insecure,
             model=args.model, storage_options=storage_options, seed=args.seed,
-            particle_mass_kg=args.particle_mass, dt_s=args.dt,
+            particle_mass_kg=args.particle_mass, dt_s=args.dt, slice_s=args.slice,
+            cycle_budget_s=args.cycle_budget,
             cycle_s=args.cycle, lockstep=args.lockstep, period_s=args.period,
             duration_s=args.duration, checkpoint=args.checkpoint, summary=args.summary,
             node_map=args.node_map, rest_port=args.rest_port,
