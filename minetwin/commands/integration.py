@@ -206,9 +206,13 @@ def _plots(out: Path, ledger: dict, summary: dict) -> list[str]:
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
     ax1.plot(t, mass / 1e3, label="held mass")
     ax1.set_ylabel("held mass [t]")
-    ax1.set_ylim(0, None)
+    # from zero, with room above: a full pile's flat line is not drawn on the frame
+    ax1.set_ylim(0, max(float(np.nanmax(mass, initial=0.0)) / 1e3 * 1.1, 1.0))
     ax2.plot(t, grade * 100, color="tab:green", label="mass-weighted grade")
     ax2.set_ylabel("average grade [%]")
+    ax2.ticklabel_format(axis="y", useOffset=False)
+    # a pile of 1,500 t barely moves its average grade in a minute: 0.5 %-points at least
+    plotstyle.span_at_least(ax2, grade * 100, 0.5)
     ax2.set_xlabel("simulation time [s]")
     for ax in (ax1, ax2):
         plotstyle.legend(ax, loc="upper left")
