@@ -378,10 +378,10 @@ cards a ``model = "auto"`` stockpile chooses by when its scenario names none."""
 
 def registered_cards() -> list[FidelityCard]:
     """The cards of every registered cards file, in entry-point name order."""
-    from importlib.metadata import entry_points
+    from cosim.plugins import registered
 
     cards = []
-    for ep in sorted(entry_points(group=CARDS_ENTRY_POINT_GROUP), key=lambda ep: ep.name):
+    for ep in registered(CARDS_ENTRY_POINT_GROUP).values():
         cards += read_cards(ep.load())
     return cards
 

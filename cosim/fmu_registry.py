@@ -19,10 +19,10 @@ a built FMU of that name (fmus/build) comes first.
 
 from __future__ import annotations
 
-from importlib.metadata import entry_points
 from pathlib import Path
 
 from cosim.errors import ValidationError
+from cosim.plugins import load_registered, registered
 
 ROLE_ENTRY_POINT_GROUP = "minetwin.fmu_roles"
 """Entry-point group of the FMU roles: name = ``"module:INTERFACE"``."""
@@ -30,32 +30,20 @@ FMU_ENTRY_POINT_GROUP = "minetwin.fmus"
 """Entry-point group of the FMU files packages ship: name = ``"module:PATH"``."""
 
 
-def _points(group: str) -> dict:
-    return {ep.name: ep for ep in sorted(entry_points(group=group), key=lambda ep: ep.name)}
-
-
-def _load(point, field: str, what: str):
-    try:
-        return point.load()
-    except Exception as exc:  # a broken plug-in is reported, not raised through
-        raise ValidationError(field, f"{what} that imports ({point.value})",
-                              f"{point.name!r} failed: {type(exc).__name__}: {exc}") from None
-
-
 def registered_roles() -> list[str]:
     """The names of the registered FMU roles, sorted."""
-    return list(_points(ROLE_ENTRY_POINT_GROUP))
+    return list(registered(ROLE_ENTRY_POINT_GROUP))
 
 
 def role_interface(role: str, field: str = "fmu_role") -> tuple:
     """The interface (tuple of ``VariableSpec``) an FMU in ``role`` must offer."""
     from cosim.fmu import VariableSpec
 
-    points = _points(ROLE_ENTRY_POINT_GROUP)
+    points = registered(ROLE_ENTRY_POINT_GROUP)
     if role not in points:
         raise ValidationError(field, f"one of {list(points)} (the registered FMU roles)",
                               f"got {role!r}")
-    interface = _load(points[role], field, "an FMU role")
+    interface = load_registered(points[role], field, "an FMU role")
     if not (isinstance(interface, tuple) and interface
             and all(isinstance(spec, VariableSpec) for spec in interface)):
         raise ValidationError(field, "a non-empty tuple of cosim.fmu.VariableSpec",
@@ -65,15 +53,15 @@ def role_interface(role: str, field: str = "fmu_role") -> tuple:
 
 def registered_fmus() -> list[str]:
     """The names of the FMU files packages registered, sorted."""
-    return list(_points(FMU_ENTRY_POINT_GROUP))
+    return list(registered(FMU_ENTRY_POINT_GROUP))
 
 
 def registered_fmu_path(name: str, field: str = "fmu") -> Path | None:
     """The file a package registered as FMU ``name`` (None if none did)."""
-    point = _points(FMU_ENTRY_POINT_GROUP).get(name)
+    point = registered(FMU_ENTRY_POINT_GROUP).get(name)
     if point is None:
         return None
-    path = _load(point, field, "a registered FMU")
+    path = load_registered(point, field, "a registered FMU")
     if not isinstance(path, (str, Path)) or not Path(path).is_file():
         raise ValidationError(field, "a registered FMU whose .fmu file exists",
                               f"{name!r} ({point.value}) points to {path!r}")

@@ -28,9 +28,9 @@ inlet is [m], for the assets that feed it: a truck drives to it), and
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 
 from cosim.errors import ValidationError
+from cosim.plugins import registered
 
 ENTRY_POINT_GROUP = "minetwin.assets"
 
@@ -112,7 +112,7 @@ _KINDS: dict[str, object] | None = None
 def _entry_points() -> dict[str, object]:
     global _KINDS
     if _KINDS is None:
-        _KINDS = {point.name: point for point in entry_points(group=ENTRY_POINT_GROUP)}
+        _KINDS = registered(ENTRY_POINT_GROUP)
     return _KINDS
 
 

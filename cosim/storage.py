@@ -42,11 +42,10 @@ third party's. ``storage_class(name)`` loads the class of a registered name
 
 from __future__ import annotations
 
-from importlib.metadata import entry_points
-
 import numpy as np
 
 from cosim.errors import ValidationError
+from cosim.plugins import load_registered, registered
 
 MAX_DISCHARGE_RATE = 2000.0
 """Largest feeder rate [kg/s] (paper: up to 2 t/s)."""
@@ -275,8 +274,7 @@ ENTRY_POINT_GROUP = "minetwin.storage"
 
 def registered_models() -> dict:
     """The registered storage models: name -> entry point (not yet imported), by name."""
-    return {ep.name: ep for ep in sorted(entry_points(group=ENTRY_POINT_GROUP),
-                                          key=lambda ep: ep.name)}
+    return registered(ENTRY_POINT_GROUP)
 
 
 def storage_class(name: str, field: str = "storage_model") -> type:
@@ -285,11 +283,7 @@ def storage_class(name: str, field: str = "storage_model") -> type:
     if name not in models:
         raise ValidationError(field, f"one of {list(models)} (the registered storage models)",
                               f"got {name!r}")
-    try:
-        cls = models[name].load()
-    except Exception as exc:  # a broken plug-in is reported, not raised through
-        raise ValidationError(field, f"a storage model that imports ({models[name].value})",
-                              f"{name!r} failed: {type(exc).__name__}: {exc}") from None
+    cls = load_registered(models[name], field, "a storage model")
     if not (isinstance(cls, type) and issubclass(cls, StorageModel)):
         raise ValidationError(field, "a subclass of cosim.storage.StorageModel",
                               f"{name!r} is registered as {models[name].value}")
