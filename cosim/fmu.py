@@ -185,13 +185,13 @@ def resolve_fmu(name: str) -> str:
 
 
 def check_fmu_parameters(fmu: str, parameters: dict) -> None:
-    """Refuse parameters the FMU does not have, or values outside its declared min/max
-    (field ``parameters.NAME``)."""
+    """Refuse an FMU name that resolves to no file (``resolve_fmu``), parameters the FMU
+    does not have, or values outside its declared min/max (field ``parameters.NAME``)."""
+    file = resolve_fmu(fmu)
     if not parameters:
         return
     from fmpy import read_model_description
 
-    file = resolve_fmu(fmu)
     try:
         description = read_model_description(file)
     except Exception:  # noqa: BLE001 - a broken FMU is reported, in full, when it is loaded

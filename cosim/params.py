@@ -147,10 +147,9 @@ class FmuAssetParameters(Parameters):
 
     @model_validator(mode="after")
     def _fmu(self):
-        from cosim.fmu import check_fmu_parameters, resolve_fmu
+        from cosim.fmu import check_fmu_parameters
 
         try:
-            resolve_fmu(self.fmu)
             check_fmu_parameters(self.fmu, self.parameters)
         except ValidationError as exc:
             raise refuse_from(exc) from None

@@ -59,7 +59,6 @@ from pydantic_core import PydanticCustomError
 
 from cosim import jsonio
 from cosim.errors import ValidationError, raise_all
-from cosim.fmu import FmuComponent
 from cosim.params import Parameters, Text, check, number, refuse
 
 WALL_CLOCK_FIELDS = ("wall_s", "realtime_factor")
@@ -359,6 +358,8 @@ def build(config: dict, *, seed: int | None = None, storage_model: str | None = 
 # --------------------------------------------------------------------- outputs
 def summarize(simulation: Simulation) -> dict:
     """The run's summary: sizes, mass balance, timing and the main signals' means."""
+    from cosim.fmu import FmuComponent  # (fmpy) not at the import of this module
+
     series = simulation.timeseries
     plant = simulation.plant
     master = simulation.master
@@ -422,8 +423,8 @@ def write_outputs(simulation: Simulation, out_dir, failure=None,
     jsonio.write(out / "summary.json", summary, indent=2, sort_keys=True)
     from cosim.plotstyle import run_label
 
-    plot_overview(series, out / "overview.png",
-                  run=run_label(simulation.config, scenario=scenario_name),
+    run = run_label(simulation.config, scenario=scenario_name)
+    plot_overview(series, out / "overview.png", run=run,
                   assets={kind: assets_of_kind(simulation.config, kind)
                           for kind in ("crusher", "stockpile", "mill")})
     if summary["fidelity"]:
@@ -431,7 +432,7 @@ def write_outputs(simulation: Simulation, out_dir, failure=None,
 
         for pile, choice in summary["fidelity"].items():
             plot_fidelity(choice, out / f"fidelity_{pile}.png", series=series, pile=pile,
-                          run=run_label(simulation.config, scenario=scenario_name))
+                          run=run)
     return summary
 
 
