@@ -77,6 +77,10 @@ def test_bad_input_names_the_field(tmp_path, capsys):
     assert main(base + ["--signals", "crusher_fmu.power", "--tolerance", "0.1",
                         "--steps", "0.5,fast"]) == 2
     assert "--steps" in capsys.readouterr().err
+    assert main(base + ["--signals", "crusher_fmu.power", "--tolerance", "0.1",
+                        "--steps", "0.25,0.75"]) == 2      # refused before anything runs
+    assert "--steps: must be a ladder of doublings" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
     assert main(base + ["--tolerance", "0.1"]) == 2       # the plant declares no signals
     assert "--signals" in capsys.readouterr().err
     assert main(base + ["--signals", "crusher_fmu.power", "--tolerance", "1.5"]) == 2

@@ -53,6 +53,19 @@ def window_means(series: pd.DataFrame, signal: str, window_s: float,
         return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
 
 
+def check_ladder(steps, field: str = "steps") -> list[float]:
+    """``steps`` [s] sorted, or a ``ValidationError`` unless they are at least two and
+    each the double of the one before (H, 2H, 4H, ...)."""
+    steps = sorted(steps)
+    if len(steps) < 2:
+        raise ValidationError(field, "at least two communication steps", f"got {steps}")
+    for a, b in zip(steps, steps[1:]):
+        if not math.isclose(b, 2.0 * a, rel_tol=1e-9):
+            raise ValidationError(field, "a ladder of doublings (H, 2H, 4H, ...)",
+                                  f"got {steps}")
+    return steps
+
+
 def coupling_errors(runs: dict[float, pd.DataFrame], signals: list[str], *,
                     window_s: float, until: float) -> dict:
     """Per step (ascending) and per declared signal: the step-doubling estimate
@@ -60,13 +73,7 @@ def coupling_errors(runs: dict[float, pd.DataFrame], signals: list[str], *,
     ``against_finest`` and the observed order ``order`` (None without three
     steps), all relative to the signal's scale. ``runs``: step [s] -> the run's
     time series at that step."""
-    steps = sorted(runs)
-    if len(steps) < 2:
-        raise ValidationError("steps", "at least two communication steps", f"got {steps}")
-    for a, b in zip(steps, steps[1:]):
-        if not math.isclose(b, 2.0 * a, rel_tol=1e-9):
-            raise ValidationError("steps", "a ladder of doublings (H, 2H, 4H, ...)",
-                                  f"got {steps}")
+    steps = check_ladder(runs)
     if not (math.isfinite(window_s) and window_s >= steps[-1]):
         raise ValidationError("window_s", f">= the largest step {steps[-1]:g} s",
                               f"got {window_s!r}")

@@ -49,6 +49,8 @@ def register(subparsers) -> None:
 
 
 def _steps(text: str) -> list[float]:
+    """The ladder of steps [s], checked before anything runs."""
+    from cosim.analyses.coupling_step import check_ladder
     from cosim.errors import ValidationError
 
     try:
@@ -58,7 +60,7 @@ def _steps(text: str) -> list[float]:
                               f"got {text!r}") from None
     if len(steps) < 2 or not all(0.001 <= h <= 5.0 for h in steps):
         raise ValidationError("--steps", "at least two steps in [0.001, 5] s", f"got {text!r}")
-    return steps
+    return check_ladder(steps, "--steps")
 
 
 def plan(args):
