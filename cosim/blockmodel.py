@@ -103,7 +103,7 @@ def mwd_signal(hardness, x, *, beta: float = 0.4, location_error: float = 0.0,
         if rng is None:
             raise ValidationError("rng", "a numpy Generator when location_error > 0")
         x = x + rng.uniform(-location_error, location_error, size=x.shape)
-    return power(np.asarray(hardness(x), dtype=np.float64), float(beta))
+    return power(hardness(x), beta)
 
 
 @dataclass

@@ -38,7 +38,7 @@ RATIO = 10.0 ** (1.0 / 3.0)
 DIAMETERS = 1e-5 * np.array([RATIO ** float(k) for k in range(N_CLASSES)])
 """Class diameters d_k [m] (upper edge of class k)."""
 
-_LOG_EDGES = np.array([math.log(d) for d in np.concatenate(([DIAMETERS[0] / RATIO], DIAMETERS))])
+_LOG_EDGES = np.array([math.log(d) for d in (DIAMETERS[0] / RATIO, *DIAMETERS)])
 
 
 def class_of(diameter: float) -> int:
@@ -166,7 +166,7 @@ def _swebrec_cdf(medians: np.ndarray, x_max: float, b: float) -> np.ndarray:
     x = np.minimum(DIAMETERS, x_max)[None, :]
     with np.errstate(divide="ignore"):
         ratio = log(x_max / x) / log(x_max / medians[:, None])
-    return np.where(x >= x_max, 1.0, 1.0 / (1.0 + power(ratio, float(b))))
+    return np.where(x >= x_max, 1.0, 1.0 / (1.0 + power(ratio, b)))
 
 
 def rosin_rammler(x_c: float = 0.15, n: float = 1.0) -> np.ndarray:
@@ -186,7 +186,7 @@ def rosin_rammler(x_c: float = 0.15, n: float = 1.0) -> np.ndarray:
         raise ValidationError("x_c", "> 0 m", f"got {x_c!r}")
     if not n > 0:
         raise ValidationError("n", "> 0", f"got {n!r}")
-    return fractions_from_cdf(1.0 - exp(-power(DIAMETERS / x_c, float(n))))
+    return fractions_from_cdf(1.0 - exp(-power(DIAMETERS / x_c, n)))
 
 
 def blasted_fractions(rng: np.random.Generator, count: int, *, x50: float = 0.1,

@@ -128,7 +128,8 @@ class LotLog:
         if sources.dtype.kind not in "iu":
             sources = np.array([-1 if s is None else int(s) for s in sources.tolist()])
         self._rows.extend(
-            time_s=np.broadcast_to(np.asarray(time_s, dtype=np.float64), (k,)), kind=np.full(k, EVENT_KINDS.index(kind)),
+            time_s=np.broadcast_to(np.asarray(time_s, dtype=np.float64), (k,)),
+            kind=np.full(k, EVENT_KINDS.index(kind)),
             tracking_id=tids.astype(np.uint64), has_tracking_id=has,
             mass_kg=masses, grade=grades, source=sources, particle_count=counts)
         self.last_seq += k

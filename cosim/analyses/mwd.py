@@ -68,8 +68,7 @@ def expected_torque(stays: pd.DataFrame, signal: np.ndarray, beta: float, times,
     """tau(t; beta) = scale * sum_{n in zone at t} m_n s_n**(1/beta) k_cr.f_n [N m]."""
     k_cr = crushing_coefficients() if k_cr is None else k_cr
     kf = stays[F_COLUMNS].to_numpy() @ k_cr
-    weights = (stays["mass"].to_numpy() * kf
-               * power(np.asarray(signal, dtype=np.float64), 1.0 / beta))
+    weights = stays["mass"].to_numpy() * kf * power(signal, 1.0 / beta)
     return scale * occupancy_sum(stays["t_in"].to_numpy(), stays["t_out"].to_numpy(),
                                  weights, times)
 
@@ -145,7 +144,7 @@ def predicted_hardness(signal, beta: float) -> np.ndarray:
     """Hardness from the MWD signal: h = s**(1/beta) [-]."""
     if not (np.isfinite(beta) and beta > 0):
         raise ValidationError("beta", "finite and > 0", f"got {beta!r}")
-    return power(np.asarray(signal, dtype=np.float64), 1.0 / beta)
+    return power(signal, 1.0 / beta)
 
 
 def zone_hardness(stays: pd.DataFrame, mwd: pd.Series, times, betas) -> pd.DataFrame:

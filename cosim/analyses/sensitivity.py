@@ -53,8 +53,7 @@ def _mwd_point(*, dx: float, seed: int, times, torque, stays, origins, beta_true
                fit_scale: bool, k_cr) -> dict:
     """beta_fit for one (dx, seed) of the sweep (one task of its batch)."""
     rng = np.random.default_rng(seed)
-    signals = [power(np.asarray(profile(perturbed_origins(x, dx, rng).to_numpy()),
-                                dtype=np.float64), float(beta_true))
+    signals = [power(profile(perturbed_origins(x, dx, rng).to_numpy()), beta_true)
                for x, profile in origins.values()]
     index = np.concatenate([x.index.to_numpy() for x, _ in origins.values()])
     survey = pd.Series(np.concatenate(signals), index=index)

@@ -330,7 +330,7 @@ class DemConfig:
     # ----------------------------------------------------------- derived
     def sphere_mass(self, diameter):
         """Mass [kg] of a disk of ``diameter`` [m]: a sphere of ``density``."""
-        return self.density * math.pi / 6.0 * power(np.asarray(diameter, dtype=np.float64), 3.0)
+        return self.density * math.pi / 6.0 * power(diameter, 3.0)
 
     def diameter_of_mass(self, mass):
         """Diameter [m] of a sphere of ``mass`` [kg], clipped to the size range."""
