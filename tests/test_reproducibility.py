@@ -8,8 +8,9 @@ and ``_digest`` on an AMD EPYC with AVX-512; the same run with another OpenBLAS 
 (``GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2_Usable,-FMA_Usable,-AVX_Usable``) and numpy
 without its AVX-512 loops (``NPY_DISABLE_CPU_FEATURES``, also with AVX2's) gives the
 same digests, which is what ``cosim.numerics`` is for. (The digests recorded before
-held only on CPUs without AVX-512: numpy's exp, log and power round differently there.) A change to a model changes
-them on purpose: rerun ``python tests/test_reproducibility.py`` and paste its output.
+held only on CPUs without AVX-512: numpy's exp, log and power round differently there.)
+A change to a model changes them on purpose: rerun ``python tests/test_reproducibility.py``
+and paste its output.
 """
 
 import hashlib
