@@ -120,10 +120,11 @@ def _sweep(out: Path, *options: str, wait_for_one: bool = False,
             time.sleep(0.2)
         os.killpg(process.pid, signal.SIGINT)
     if kill_a_worker:  # SIGKILL one process of the local pool while the runs are under way
-        while not _children(process.pid) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        time.sleep(2.0)  # into the runs (each takes several seconds here)
-        os.kill(_children(process.pid)[0], signal.SIGKILL)
+        # at once: on an idle machine the runs may all end within the 2 s this waited
+        while not (workers := _children(process.pid)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert workers, "the sweep started no worker process"
+        os.kill(workers[0], signal.SIGKILL)
     _, err = process.communicate(timeout=600)
     return process.returncode, err
 
