@@ -115,7 +115,14 @@ def test_every_run_finishes_with_the_compact_schema(reduced_run):
         samples = int(round(run.duration)) - LAG + 1
         with np.load(work / "runs" / f"{key}.npz") as data:
             result = {k: data[k] for k in data.files}
-        assert set(result) == set(pd.SAMPLE_KEYS) | {f"out_{k}" for k in pd._OUTFLOW_KEYS}
+        inflow = {f"in_{k}" for k in pd._OUTFLOW_KEYS} if run.inflow_rate > 0 else set()
+        assert set(result) == (set(pd.SAMPLE_KEYS) | {f"out_{k}" for k in pd._OUTFLOW_KEYS}
+                               | inflow)
+        if inflow:  # the fed particles, exactly: one row per id, the run's whole inflow
+            assert result["in_id"].dtype == np.uint64 and result["in_mass"].dtype == np.float64
+            assert np.unique(result["in_id"]).size == result["in_id"].size
+            assert result["in_mass"].sum() == pytest.approx(run.inflow_rate * run.duration,
+                                                            rel=1e-12)
         shapes = {"mass": (samples, ny, nx), "velocity": (samples, ny, nx, 2),
                   "grade": (samples, ny, nx), "hardness": (samples, ny, nx),
                   "dispersion_fit": (samples, 2)}
@@ -335,3 +342,33 @@ def test_the_committed_runs_keep_their_keys_as_dem_settings_are_added():
         assert not {pd.run_key(other, run) for run in design.runs} & keys, changes
     threads = dataclasses.replace(design, config=dataclasses.replace(design.config, threads=2))
     assert {pd.run_key(threads, run) for run in design.runs} == keys
+
+
+def test_heldout_replicas_share_their_inflow_and_start_and_keep_the_design_keys(tmp_path):
+    """The held-out design's replicas of a scene are fed the very same particles
+    (ids, masses, lots) from the same start state; only the perturbed ones get a
+    key of their own, and the paper design's runs keep theirs (checked above).
+    Invariants only: the replicas' outflows are chaotic."""
+    design = pd.get_design("reduced_heldout")
+    runs = design.runs
+    assert len(runs) == pd.HELDOUT_REPLICAS
+    assert [r.perturbation for r in runs] == [0.0] + [pd.HELDOUT_PERTURBATION] * (len(runs) - 1)
+    assert len({pd.run_key(design, r) for r in runs}) == len(runs)
+    unperturbed = dataclasses.replace(runs[0], replica=0)
+    assert pd.run_key(design, unperturbed) == pd.run_key(design, runs[0])
+    manifest = pd.run_design(design, tmp_path, workers=1, progress=None)
+    assert {r["name"] for r in manifest["runs_finished"]} == {r.name for r in runs}
+    results = []
+    for run in runs:
+        with np.load(tmp_path / "runs" / f"{pd.run_key(design, run)}.npz") as data:
+            results.append({k: data[k] for k in data.files})
+    first = results[0]
+    for other in results[1:]:
+        for name in ("in_time", "in_id", "in_tracking_id", "in_mass", "in_grade",
+                     "in_hardness"):
+            assert np.array_equal(other[name], first[name]), name
+    for run, result in zip(runs, results):
+        record = _strict((tmp_path / "runs" / f"{pd.run_key(design, run)}.json").read_text())
+        assert record["held_mass_start_kg"] == _strict((tmp_path / "runs" / (
+            pd.run_key(design, runs[0]) + ".json")).read_text())["held_mass_start_kg"]
+        assert abs(record["mass_balance_error"]) < 1e-9

@@ -173,6 +173,11 @@ class RunSpec:
         along a chain of runs).
     inlet : int
         Inlet the inflow enters at (0: x = -2 m).
+    perturbation : float
+        Every disk of the start state moved by this much [m] in a direction of
+        its own (default 0: none), for replicas of a chaotic run.
+    replica : int
+        Which replica (seeds the directions; 0 with no perturbation).
     """
 
     name: str
@@ -183,6 +188,8 @@ class RunSpec:
     seed: int
     first_tracking_id: int
     inlet: int = 0
+    perturbation: float = 0.0
+    replica: int = 0
 
 
 @dataclass(frozen=True)
@@ -257,7 +264,57 @@ def reduced_design() -> Design:
     return Design("reduced", cfg, paper_grid(cfg), piles, _runs(rows), checkpoint_interval=2.0)
 
 
-DESIGNS = {"paper": paper_design, "reduced": reduced_design}
+HELDOUT_PERTURBATION = 1e-6
+"""Start-state perturbation [m] of the held-out replicas after the first."""
+
+HELDOUT_REPLICAS = 3
+"""DEM replicas per held-out scene (issue 15: at least 3)."""
+
+
+def _heldout_runs(start: str, scenes, duration: float, first_seed: int) -> tuple:
+    """Each scene ``(name, discharge, inflow)`` as ``HELDOUT_REPLICAS`` runs of
+    the same inflow (same feed seed and tracking ids) from ``start``, the
+    first unperturbed, the others moved by ``HELDOUT_PERTURBATION``; ordered
+    replica by replica, so that every scene gets its first two (a noise floor)
+    before any gets its third."""
+    runs = []
+    for replica in range(HELDOUT_REPLICAS):
+        for k, (name, q_out, q_in) in enumerate(scenes):
+            runs.append(RunSpec(f"{name}_r{replica}", start, q_out, q_in, duration,
+                                seed=first_seed + k, first_tracking_id=10_000 * (first_seed + k),
+                                perturbation=HELDOUT_PERTURBATION if replica else 0.0,
+                                replica=replica))
+    return tuple(runs)
+
+
+def paper_heldout_design() -> Design:
+    """Held-out paper-scale scenes for scoring the ROM (issue 15): a laid-out
+    pile of 17,500 disks (about 1.5 kt, the integration test's pre-filled
+    state; the design's laid-out piles hold 1.2 and 1.7 kt) run for 180 s at
+    the paper's throughputs, 1.2 and 2 t/s in and out, and draining at
+    1.5 t/s with 0.7 t/s in (a rate pair not in the design), each as
+    ``HELDOUT_REPLICAS`` DEM replicas."""
+    cfg = paper_config()
+    piles = (PileSpec("heldout_1500t", 17_500, seed=2),)
+    scenes = (("heldout_q1200", 1200.0, 1200.0), ("heldout_q2000", 2000.0, 2000.0),
+              ("heldout_out1500_in700", 1500.0, 700.0))
+    return Design("paper_heldout", cfg, paper_grid(cfg), piles,
+                  _heldout_runs("pile:heldout_1500t", scenes, 180.0, first_seed=100),
+                  checkpoint_interval=20.0)
+
+
+def reduced_heldout_design() -> Design:
+    """``paper_heldout_design`` on a few hundred disks and seconds (for tests)."""
+    cfg = paper_config()
+    piles = (PileSpec("heldout_small", 300, seed=2, settle_time=2.0),)
+    scenes = (("small_heldout_q1000", 1000.0, 1000.0),)
+    return Design("reduced_heldout", cfg, paper_grid(cfg), piles,
+                  _heldout_runs("pile:heldout_small", scenes, 8.0, first_seed=100),
+                  checkpoint_interval=2.0)
+
+
+DESIGNS = {"paper": paper_design, "reduced": reduced_design,
+           "paper_heldout": paper_heldout_design, "reduced_heldout": reduced_heldout_design}
 
 
 def get_design(name: str) -> Design:
@@ -319,9 +376,16 @@ def start_key(design: Design, start: str) -> str:
     raise ValidationError("start", "'pile:<name>' or 'run:<name>'", f"got {start!r}")
 
 
+REPLICA_FIELDS = ("perturbation", "replica")
+"""Run fields added after the design's runs began: they enter a key only when a
+run is a perturbed replica, so the unperturbed runs keep their keys."""
+
+
 def run_key(design: Design, run: RunSpec) -> str:
     """Content key of a run: its inputs and its start state's key, not its name."""
     spec = {k: v for k, v in asdict(run).items() if k not in ("name", "start")}
+    if not run.perturbation:
+        spec = {k: v for k, v in spec.items() if k not in REPLICA_FIELDS}
     return _digest({**_common(design), "kind": "run", "spec": spec,
                     "start": start_key(design, run.start)})
 
@@ -421,6 +485,7 @@ class _RunState:
         self.samples = {k: [] for k in SAMPLE_KEYS}
         self.taken, self.held, self.window = [], [], []
         self.outflow = []
+        self.inflow = []
         self.feed = doe.LotFeed(run.first_tracking_id, run.seed)
         self.wall = self.cpu = self.particle_steps = 0.0
         self.resumed_at = []
@@ -433,6 +498,7 @@ class _RunState:
                        for k in SNAPSHOT_KEYS})
         outflow = _join_outflow(self.outflow)
         arrays.update({f"out_{k}": v for k, v in outflow.items()})
+        arrays.update({f"in_{k}": v for k, v in _join_outflow(self.inflow).items()})
         feed = {"rng": self.feed.rng.bit_generator.state, "tracking_id": self.feed.tracking_id,
                 "left": self.feed.left, "grade": self.feed.grade,
                 "hardness": self.feed.hardness}
@@ -457,6 +523,8 @@ class _RunState:
             for s in state.window:
                 s["time"] = float(s["time"])
             state.outflow = [{k: data[f"out_{k}"].copy() for k in _OUTFLOW_KEYS}]
+            if "in_id" in data.files:
+                state.inflow = [{k: data[f"in_{k}"].copy() for k in _OUTFLOW_KEYS}]
             feed = meta["feed"]
             state.feed.rng.bit_generator.state = feed["rng"]
             state.feed.tracking_id, state.feed.left = feed["tracking_id"], feed["left"]
@@ -533,6 +601,8 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
     else:
         dem = Dem.load_checkpoint(start_path)
         state = _RunState(run)
+        if run.perturbation:
+            perturb(dem, run)
         dem.discharged()  # flush: only this run's outflow is recorded
         state.window = [_bulk(dem)]
         state.held = [dem.held_mass()]
@@ -548,7 +618,12 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
     while state.step < steps:
         tic, cpu0 = time.perf_counter(), time.process_time()
         if run.inflow_rate > 0:
+            first_new = dem.n
             emit_feed(dem, state.feed, run.inflow_rate * doe.CONTROL_STEP, inlet=run.inlet)
+            # every model scored on a held-out run is fed these very particles
+            state.inflow.append({"time": np.full(dem.n - first_new, dem.time),
+                                 **{k: getattr(dem, k)[first_new:].copy()
+                                    for k in _OUTFLOW_KEYS if k != "time"}})
         n_before, steps_before = dem.n, dem.steps_done
         reason = doe.advance_guarded(dem, doe.CONTROL_STEP)
         state.particle_steps += (dem.steps_done - steps_before) * n_before
@@ -630,6 +705,15 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
     return record
 
 
+def perturb(dem, run: RunSpec) -> None:
+    """Move every disk by ``run.perturbation`` [m] in a direction of its own,
+    drawn from the run's seed and replica (the DEM is chaotic: replicas that
+    start this close end as independent realisations)."""
+    rng = np.random.default_rng([run.seed, 11, run.replica])
+    angle = rng.uniform(0.0, 2.0 * np.pi, dem.n)
+    dem.pos = dem.pos + run.perturbation * np.column_stack((np.cos(angle), np.sin(angle)))
+
+
 def _since_start(total: float, start: dict, key: str):
     """``total`` minus its value at the run's start [kg] (None for a run
     resumed from a checkpoint that did not record it)."""
@@ -646,6 +730,8 @@ def compact_result(state: _RunState) -> dict:
     for k in _OUTFLOW_KEYS:
         kind = np.uint64 if k in ("id", "tracking_id") else np.float32
         result[f"out_{k}"] = np.asarray(outflow[k], dtype=kind)
+    if state.inflow:  # float64: the particles other models are fed must be the DEM's own
+        result.update({f"in_{k}": v for k, v in _join_outflow(state.inflow).items()})
     return result
 
 
