@@ -117,15 +117,8 @@ def _sweep(out: Path, *options: str, wait_for_one: bool = False,
     deadline = time.monotonic() + 300
     if wait_for_one:  # Ctrl-C once the first run is stored
         while not list((out / "records").glob("*.json")) and time.monotonic() < deadline:
-            time.sleep(0.005)
-        # a run takes about a second on an idle machine: the pool is held still while
-        # Ctrl-C goes out, so the next run cannot also end before it arrives
-        workers = _children(process.pid)
-        for pid in workers:
-            os.kill(pid, signal.SIGSTOP)
+            time.sleep(0.2)
         os.killpg(process.pid, signal.SIGINT)
-        for pid in workers:
-            os.kill(pid, signal.SIGCONT)
     if kill_a_worker:  # SIGKILL one process of the local pool while the runs are under way
         # at once: on an idle machine the runs may all end within the 2 s this waited
         while not (workers := _children(process.pid)) and time.monotonic() < deadline:
