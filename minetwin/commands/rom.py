@@ -51,7 +51,9 @@ def register(subparsers) -> None:
                     "runs (in --work or in --data) and resumes interrupted ones from their "
                     "latest checkpoint. --plan prints the planned cost; --export copies the "
                     "finished runs into --data (train/*.npz, manifest.json, doe.json).")
-    design.add_argument("--design", default="paper", help="paper (default), reduced, paper_heldout (the held-out scenes) or reduced_heldout")
+    design.add_argument("--design", default="paper",
+                        help="paper (default), reduced, paper_heldout (the held-out "
+                             "scenes) or reduced_heldout")
     design.add_argument("--work", required=True,
                         help="work directory: checkpoints, states and results")
     design.add_argument("--data", default=None,
