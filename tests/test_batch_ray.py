@@ -40,6 +40,12 @@ ROOT = Path(__file__).resolve().parents[1]
 SWEEP = ["examples/step_response.toml", "--set", "assets.left.length_m=300,0.5",
          "--set", "assets.trucks.trucks.0.start_s=0", "--seeds", "2", "--until", "10"]
 WALL_KEYS = {"wall_s", "realtime_factor", "host", "code_version", "folder"}
+# A shell without job control starts background commands with SIGINT ignored, and
+# Python keeps an ignored SIGINT ignored: under `make test &` the sweep would not see
+# the Ctrl-C at all. A terminal's foreground job has the default disposition.
+AS_FROM_A_TERMINAL = ("import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+                      "os.execv(sys.executable, [sys.executable, '-m', 'minetwin.cli', "
+                      "*sys.argv[1:]])")
 
 
 @pytest.fixture(scope="module")
@@ -110,7 +116,7 @@ def _children(pid: int) -> list[int]:
 
 def _sweep(out: Path, *options: str, wait_for_one: bool = False,
            kill_a_worker: bool = False) -> tuple[int, str]:
-    command = [sys.executable, "-m", "minetwin.cli", "sweep", *SWEEP, "--out", str(out),
+    command = [sys.executable, "-c", AS_FROM_A_TERMINAL, "sweep", *SWEEP, "--out", str(out),
                *options]
     process = subprocess.Popen(command, cwd=ROOT, stderr=subprocess.PIPE, text=True,
                                start_new_session=True)
