@@ -344,12 +344,21 @@ def test_the_committed_runs_keep_their_keys_as_dem_settings_are_added():
     assert {pd.run_key(threads, run) for run in design.runs} == keys
 
 
-def test_heldout_replicas_share_their_inflow_and_start_and_keep_the_design_keys(tmp_path):
+@pytest.fixture(scope="module")
+def heldout_run(tmp_path_factory):
+    """The reduced held-out design run once, in this process (one worker)."""
+    work = tmp_path_factory.mktemp("heldout")
+    design = pd.get_design("reduced_heldout")
+    manifest = pd.run_design(design, work, workers=1, progress=None)
+    return design, work, manifest
+
+
+def test_heldout_replicas_share_their_inflow_and_start_and_keep_the_design_keys(heldout_run):
     """The held-out design's replicas of a scene are fed the very same particles
     (ids, masses, lots) from the same start state; only the perturbed ones get a
     key of their own, and the paper design's runs keep theirs (checked above).
     Invariants only: the replicas' outflows are chaotic."""
-    design = pd.get_design("reduced_heldout")
+    design, work, manifest = heldout_run
     runs = design.runs
     assert len(runs) == pd.HELDOUT_REPLICAS
     assert [r.perturbation for r in runs] == [0.0] + [pd.HELDOUT_PERTURBATION] * (len(runs) - 1)
@@ -357,17 +366,76 @@ def test_heldout_replicas_share_their_inflow_and_start_and_keep_the_design_keys(
     # the replica number seeds the perturbation only: without one, it is no input
     assert pd.run_key(design, dataclasses.replace(runs[0], replica=5)) == \
         pd.run_key(design, runs[0])
-    manifest = pd.run_design(design, tmp_path, workers=1, progress=None)
     assert {r["name"] for r in manifest["runs_finished"]} == {r.name for r in runs}
     keys = [pd.run_key(design, run) for run in runs]
     results, records = [], []
     for key in keys:
-        with np.load(tmp_path / "runs" / f"{key}.npz") as data:
+        with np.load(work / "runs" / f"{key}.npz") as data:
             results.append({k: data[k] for k in data.files})
-        records.append(_strict((tmp_path / "runs" / f"{key}.json").read_text()))
+        records.append(_strict((work / "runs" / f"{key}.json").read_text()))
     for other in results[1:]:
         for name in (f"in_{k}" for k in pd._OUTFLOW_KEYS):
             assert np.array_equal(other[name], results[0][name]), name
     for record in records:
         assert record["held_mass_start_kg"] == records[0]["held_mass_start_kg"]
         assert abs(record["mass_balance_error"]) < 1e-9
+
+
+@pytest.mark.slow  # about 25 s: trains a ROM, scores 3 models, 2 CLI runs
+def test_an_exported_heldout_design_is_laid_out_and_scored(reduced_run, heldout_run, tmp_path):
+    """Export keeps the start state though every run is done; the layout gives
+    ``evaluate`` its scene: the start state, replica 0's inflow and one DEM file
+    per replica, each conserving mass; a storage model runs it with every
+    particle accounted for; ``rom evaluate`` scores a ROM trained on the reduced
+    design there, and refuses the folder without --out."""
+    from surrogate.dem import Dem
+    from surrogate.rom import evaluate, heldout_layout
+
+    pd.export(reduced_run[0], reduced_run[1], tmp_path / "train_data")
+    model = tmp_path / "model.npz"
+    evaluate.train(tmp_path / "train_data", model, n_mass_modes=2, n_velocity_modes=2,
+                   ridge=1.0)
+    design, work, _ = heldout_run
+    data = tmp_path / "data"
+    manifest = pd.export(design, work, data)
+    assert manifest["runs_done"] == len(design.runs)
+    start = data / "states" / f"{pd.start_key(design, design.runs[0].start)}.npz"
+    assert start.is_file()
+    assert heldout_layout.is_heldout_data(data) and not heldout_layout.is_heldout_data(work)
+    layout = heldout_layout.write_layout(data, tmp_path / "scenes")
+    assert [s["name"] for s in layout["scenes"]] == ["small_heldout_q1000"]
+    assert layout["skipped"] == {}
+    scene = tmp_path / "scenes" / "small_heldout_q1000"
+    records = manifest["runs"]
+    replicas = evaluate.stable_replicas(scene)
+    assert len(replicas) == pd.HELDOUT_REPLICAS
+    initial = Dem.load_checkpoint(scene / "initial.npz")
+    for run, record in zip(replicas, records):
+        assert float(run["t0"]) == initial.time
+        assert int(run["particles"]) == initial.n == record["particles_start"]
+        assert float(run["out_mass"].sum()) == pytest.approx(record["discharged_mass_kg"],
+                                                             rel=1e-6)  # float32 masses
+        assert run["field_mass"].shape[1:] == (design.grid.ny, design.grid.nx)
+    with np.load(scene / "emissions.npz") as emissions:
+        inflow = float(emissions["mass"].sum())
+        assert inflow == pytest.approx(records[0]["inflow_mass_kg"], rel=1e-12)
+        assert float(emissions["duration"]) == design.runs[0].duration
+    outflow, _, storage = evaluate.run_storage("fifo", scene)
+    assert outflow["mass"].sum() + storage.held_mass() == pytest.approx(
+        initial.held_mass() + inflow, rel=1e-12)
+    meta = doe.read_meta(tmp_path / "scenes")
+    assert [s["name"] for s in evaluate.heldout_scenarios(tmp_path / "scenes")] == \
+        ["small_heldout_q1000"]
+    assert meta["heldout_scenarios"][0]["replicas"] == [r.name for r in design.runs]
+    command = [sys.executable, "-m", "minetwin.cli", "rom", "evaluate", "--model", str(model),
+               "--data", str(data)]
+    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode == 2 and "--out" in result.stderr, result.stderr
+    result = subprocess.run([*command, "--out", str(tmp_path / "eval")], cwd=ROOT,
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    summary = _strict((tmp_path / "eval" / "summary.json").read_text())
+    scored = summary["scenarios"]["small_heldout_q1000"]
+    assert scored["dem_replicas"] == pd.HELDOUT_REPLICAS
+    assert set(scored["tracking_error"]) == {"fifo", "mixing", "rom"}
+    assert scored["tracking_error_spread"]["dem_noise_floor"]["n"] == 3  # every pair

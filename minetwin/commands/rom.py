@@ -28,7 +28,9 @@ def register(subparsers) -> None:
                     "top level. With --quick: build a small DEM design, train and evaluate end "
                     "to end (a few minutes on 2 cores).")
     evaluate.add_argument("--model", help="model file (from `minetwin rom train`)")
-    evaluate.add_argument("--data", help="DOE directory with heldout/ runs")
+    evaluate.add_argument("--data", help="DOE directory with held-out runs, or the data folder "
+                                         "of an exported held-out design (e.g. "
+                                         "surrogate/rom/data/paper_heldout; needs --out)")
     evaluate.add_argument("--quick", action="store_true",
                           help="build a small DOE in --out, train and evaluate")
     evaluate.add_argument("--out", help="output directory for summary.json (and the DOE "
@@ -106,6 +108,7 @@ def run_evaluate(args) -> int:
     from pathlib import Path
 
     from cosim.errors import ValidationError
+    from surrogate.rom import heldout_layout
     from surrogate.rom.evaluate import build_data, evaluate, train, write_summary
     from surrogate.rom.model import RomModel
 
@@ -123,6 +126,14 @@ def run_evaluate(args) -> int:
             raise ValidationError("--model/--data", "both given (or use --quick --out DIR)")
         data = Path(args.data)
         model = RomModel.load(args.model)
+        if heldout_layout.is_heldout_data(data):  # a paper-scale held-out design
+            if not args.out:
+                raise ValidationError("--out", "a directory when --data is a held-out design "
+                                      "(its scenes are laid out there for scoring)")
+            layout = heldout_layout.write_layout(data, Path(args.out) / "scenes", _progress)
+            for scene, reason in layout["skipped"].items():
+                _progress(f"held-out scene {scene} left out: {reason}")
+            data = Path(args.out) / "scenes"
     summary = evaluate(model, data, progress=_progress, rom_options={"surface": args.surface})
     path = write_summary(summary, args.out or data)
     shown = {k: summary[k] for k in ("tracking_error", "tracking_error_dem_noise_floor",

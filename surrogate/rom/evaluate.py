@@ -490,7 +490,7 @@ def heldout_scenarios(directory) -> list[dict]:
     """The held-out scenarios of a data directory (``doe.json``; older
     directories hold the single ``heldout`` scenario)."""
     meta = doe.read_meta(directory)
-    return meta.get("heldout_scenarios", [meta["heldout"]])
+    return meta["heldout_scenarios"] if "heldout_scenarios" in meta else [meta["heldout"]]
 
 
 def evaluate_scenario(model: RomModel, heldout: Path, progress=None, rom_options=None) -> dict:

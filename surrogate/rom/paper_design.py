@@ -202,6 +202,9 @@ class Design:
     piles: tuple
     runs: tuple
     checkpoint_interval: float = 20.0
+    keep_start_states: bool = False
+    """Export the runs' start states even once every run is done (a held-out
+    design: the models scored on its runs start from them)."""
 
     def pile(self, name: str) -> PileSpec:
         return next(p for p in self.piles if p.name == name)
@@ -300,7 +303,7 @@ def paper_heldout_design() -> Design:
               ("heldout_out1500_in700", 1500.0, 700.0))
     return Design("paper_heldout", cfg, paper_grid(cfg), piles,
                   _heldout_runs("pile:heldout_1500t", scenes, 180.0, first_seed=100),
-                  checkpoint_interval=20.0)
+                  checkpoint_interval=20.0, keep_start_states=True)
 
 
 def reduced_heldout_design() -> Design:
@@ -310,7 +313,7 @@ def reduced_heldout_design() -> Design:
     scenes = (("small_heldout_q1000", 1000.0, 1000.0),)
     return Design("reduced_heldout", cfg, paper_grid(cfg), piles,
                   _heldout_runs("pile:heldout_small", scenes, 8.0, first_seed=100),
-                  checkpoint_interval=2.0)
+                  checkpoint_interval=2.0, keep_start_states=True)
 
 
 DESIGNS = {"paper": paper_design, "reduced": reduced_design,
@@ -1112,7 +1115,8 @@ def _export_states(design: Design, work: Path, data: Path, done: set,
     runs not in ``done`` into ``data``; drop those no run needs any more;
     return their bytes."""
     pending = [r for r in design.runs if run_key(design, r) not in done]
-    wanted = {start_key(design, r.start) for r in pending}
+    wanted = {start_key(design, r.start)
+              for r in (design.runs if design.keep_start_states else pending)}
     states = data / "states"
     states.mkdir(parents=True, exist_ok=True)
     for key in wanted:
