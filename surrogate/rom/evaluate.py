@@ -42,7 +42,8 @@ from cosim.storage import make_storage
 from surrogate.rom import doe, metrics
 from surrogate.rom.dispersion import dispersivity
 from surrogate.rom.grid import Grid, mean_field
-from surrogate.rom.model import RomModel
+from surrogate.rom.model import RomModel, pod_basis
+from surrogate.rom.provenance import training_provenance
 
 PERTURBATION = 1e-6
 """Initial-position perturbation [m] of the noise-floor DEM runs."""
@@ -319,25 +320,31 @@ MODEL_CANDIDATES = [(modes, velocity_modes, ridge)
 """(mass modes, velocity modes, ridge) tried by ``select``."""
 
 
-def _fit(grid, container, samples, keep, modes, velocity_modes, ridge) -> RomModel:
+def _fit(grid, container, samples, keep, modes, velocity_modes, ridge,
+         bases=None) -> RomModel:
     return RomModel(grid, modes, velocity_modes, ridge, container).fit(
         samples["mass"][keep], samples["discharge_rate"][keep], samples["inflow_rate"][keep],
-        samples["velocity"][keep])
+        samples["velocity"][keep], bases=bases)
 
 
-def leave_one_run_out_error(grid, samples, modes, velocity_modes, ridge) -> float:
-    """Mean velocity-field relative error on each training run when the model
-    is fitted on the other runs (cross-validation by whole DEM runs)."""
-    errors = []
+def leave_one_run_out_errors(grid, samples, candidates) -> dict:
+    """Each candidate ``(modes, velocity modes, ridge)``'s mean velocity-field
+    relative error on each training run when the model is fitted on the other
+    runs (cross-validation by whole DEM runs). The SVDs of a fold are done once
+    for all candidates."""
+    errors = {candidate: [] for candidate in candidates}
     for run in np.unique(samples["run"]):
         held = samples["run"] == run
-        model = _fit(grid, None, samples, ~held, modes, velocity_modes, ridge)
-        predicted = np.array([model.predict(m, q, i, check=False) for m, q, i in
-                              zip(samples["mass"][held], samples["discharge_rate"][held],
-                                  samples["inflow_rate"][held])])
-        errors.append(metrics.velocity_field_rel_error(predicted, samples["velocity"][held],
-                                                       samples["mass"][held]))
-    return float(np.mean(errors))
+        bases = (pod_basis(samples["mass"][~held]),
+                 pod_basis(samples["velocity"][~held], centred=False))
+        for candidate in candidates:
+            model = _fit(grid, None, samples, ~held, *candidate, bases=bases)
+            predicted = np.array([model.predict(m, q, i, check=False) for m, q, i in
+                                  zip(samples["mass"][held], samples["discharge_rate"][held],
+                                      samples["inflow_rate"][held])])
+            errors[candidate].append(metrics.velocity_field_rel_error(
+                predicted, samples["velocity"][held], samples["mass"][held]))
+    return {candidate: float(np.mean(e)) for candidate, e in errors.items()}
 
 
 def train(directory, out=None, n_mass_modes: int | None = None,
@@ -363,7 +370,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
                        1.0 if ridge is None else ridge)]
     validation = {}
     if len(candidates) > 1 and np.unique(samples["run"]).size > 1:
-        scores = {c: leave_one_run_out_error(grid, samples, *c) for c in candidates}
+        scores = leave_one_run_out_errors(grid, samples, candidates)
         best = min(scores, key=scores.get)
         validation = {"leave_one_run_out_velocity_rel_error": scores[best],
                       "candidates": {f"{m}/{v}/{r:g}": e for (m, v, r), e in scores.items()}}
@@ -379,6 +386,9 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         model.dispersivity = dispersivity(samples["dispersion_fit"])
         _say(progress, f"bulk dispersivity {model.dispersivity:.4f} m (measured on the DEM runs)")
     if out is not None:
+        model.provenance = training_provenance(
+            directory, out, {"mass_modes": n_mass_modes, "velocity_modes": n_velocity_modes,
+                             "ridge": ridge})
         model.save(out)
     return model
 

@@ -60,12 +60,21 @@ class OutOfTrainingRange(UserWarning):
     """An input to the ROM lies outside the range it was trained on."""
 
 
-def _pod(snapshots: np.ndarray, modes: int, centred: bool = True):
-    """Mean, orthonormal modes (cells, k) and coefficient scales of ``snapshots`` (S, cells)."""
+def pod_basis(snapshots: np.ndarray, centred: bool = True) -> tuple:
+    """``(mean, singular values, right singular vectors, count)`` of ``snapshots``
+    (S, cells): the SVD every POD truncation of them is cut from."""
+    snapshots = np.asarray(snapshots, dtype=np.float64).reshape(len(snapshots), -1)
     mean = snapshots.mean(axis=0) if centred else np.zeros(snapshots.shape[1])
     _, singular, vt = np.linalg.svd(snapshots - mean, full_matrices=False)
+    return mean, singular, vt, snapshots.shape[0]
+
+
+def _pod(basis: tuple, modes: int):
+    """Mean, orthonormal modes (cells, k) and coefficient scales of the first
+    ``modes`` of a ``pod_basis``."""
+    mean, singular, vt, count = basis
     modes = min(modes, vt.shape[0])
-    scale = singular[:modes] / np.sqrt(snapshots.shape[0])
+    scale = singular[:modes] / np.sqrt(count)
     scale = np.where(scale > 0, scale, 1.0)
     return mean, vt[:modes].T.copy(), scale
 
@@ -93,7 +102,9 @@ class RomModel:
 
     ``dispersivity`` [m] (default 0: none) is the bulk's dispersion about the
     mean flow measured on the training DEM (``surrogate.rom.dispersion``);
-    ``minetwin rom train`` sets it and the file keeps it.
+    ``minetwin rom train`` sets it and the file keeps it, as it keeps the
+    ``provenance`` (``surrogate.rom.provenance``: data, design, seeds, code
+    version, the command that regenerates the file).
     """
 
     def __init__(self, grid: Grid, n_mass_modes: int = 12, n_velocity_modes: int = 16,
@@ -114,9 +125,10 @@ class RomModel:
         self.ranges: dict[str, list[float]] = {}
         self.n_samples = 0
         self.validation: dict = {}
+        self.provenance: dict = {}
 
     # ------------------------------------------------------------ training
-    def fit(self, mass, discharge_rate, inflow_rate, velocity) -> "RomModel":
+    def fit(self, mass, discharge_rate, inflow_rate, velocity, bases=None) -> "RomModel":
         """Train on S samples.
 
         Parameters
@@ -127,6 +139,10 @@ class RomModel:
             Control signals [kg/s].
         velocity : array (S, ny, nx, 2)
             Velocity per cell [m/s].
+        bases : (mass basis, velocity basis), optional
+            ``pod_basis`` of these very mass (centred) and velocity (uncentred)
+            samples, to fit models of several mode counts without redoing the
+            SVDs (model selection); the result is the same as without.
         """
         mass = np.asarray(mass, dtype=np.float64).reshape(len(mass), -1)
         velocity = np.asarray(velocity, dtype=np.float64).reshape(len(velocity), -1)
@@ -139,8 +155,10 @@ class RomModel:
         if not (velocity.shape[0] == q_out.size == q_in.size == samples) or samples < 2:
             raise ValidationError("samples", "equal counts >= 2 of mass, rates and velocity",
                                   f"got {samples}, {q_out.size}, {q_in.size}, {velocity.shape[0]}")
-        m_mean, m_modes, m_scale = _pod(mass, self.n_mass_modes)
-        v_mean, v_modes, v_scale = _pod(velocity, self.n_velocity_modes, centred=False)
+        if bases is None:
+            bases = (pod_basis(mass), pod_basis(velocity, centred=False))
+        m_mean, m_modes, m_scale = _pod(bases[0], self.n_mass_modes)
+        v_mean, v_modes, v_scale = _pod(bases[1], self.n_velocity_modes)
         self.arrays = {"mass_mean": m_mean, "mass_modes": m_modes, "mass_scale": m_scale,
                        "velocity_mean": v_mean, "velocity_modes": v_modes,
                        "velocity_scale": v_scale}
@@ -240,7 +258,7 @@ class RomModel:
                 "rate_scale": RATE_SCALE, "ranges": self.ranges, "n_samples": self.n_samples,
                 "container": None if self.container is None else self.container.to_dict(),
                 "validation": self.validation, "dem_config": self.dem_config,
-                "dispersivity": self.dispersivity}
+                "dispersivity": self.dispersivity, "provenance": self.provenance}
 
     def save(self, path) -> Path:
         """Write the model as one ``.npz`` file (arrays + JSON header)."""
@@ -280,4 +298,5 @@ class RomModel:
         model.n_samples = int(header["n_samples"])
         model.validation = header.get("validation", {})
         model.dispersivity = float(header.get("dispersivity", 0.0))
+        model.provenance = header.get("provenance", {})
         return model
