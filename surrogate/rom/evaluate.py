@@ -42,7 +42,7 @@ from cosim.storage import make_storage
 from surrogate.rom import doe, metrics
 from surrogate.rom.dispersion import dispersivity
 from surrogate.rom.grid import Grid, mean_field
-from surrogate.rom.model import RomModel, pod_basis
+from surrogate.rom.model import RomModel, pod_basis, pod_residual
 from surrogate.rom.provenance import training_provenance
 
 PERTURBATION = 1e-6
@@ -316,8 +316,8 @@ def outflow_of(run: dict) -> dict:
 # -------------------------------------------------------------- training
 MODEL_CANDIDATES = [(modes, velocity_modes, ridge)
                     for modes, velocity_modes in ((2, 2), (4, 4), (8, 8), (12, 16))
-                    for ridge in (1e-1, 1.0, 10.0)]
-"""(mass modes, velocity modes, ridge) tried by ``select``."""
+                    for ridge in (1e-1, 1.0, 10.0, 100.0)]
+"""(mass modes, velocity modes, ridge) tried by ``train``'s model selection."""
 
 
 def _fit(grid, container, samples, keep, modes, velocity_modes, ridge,
@@ -347,6 +347,20 @@ def leave_one_run_out_errors(grid, samples, candidates) -> dict:
     return {candidate: float(np.mean(e)) for candidate, e in errors.items()}
 
 
+def leave_one_run_out_residual(samples, n_mass_modes: int) -> float:
+    """The largest ``mass_distribution_residual`` of a training run's states under
+    the mass modes of the other runs: how far from the basis a pile lies that
+    the model has not seen. A new pile of the same making differs from every
+    training state by its particles (about 30 disks per cell), which the
+    training states' own residuals do not allow for."""
+    worst = 0.0
+    for run in np.unique(samples["run"]):
+        held = samples["run"] == run
+        basis = pod_basis(samples["mass"][~held])
+        worst = max(worst, float(pod_residual(basis, n_mass_modes, samples["mass"][held]).max()))
+    return worst
+
+
 def train(directory, out=None, n_mass_modes: int | None = None,
           n_velocity_modes: int | None = None, ridge: float | None = None,
           progress=None) -> RomModel:
@@ -355,6 +369,9 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     Options left ``None`` are chosen among ``MODEL_CANDIDATES`` by the
     smallest leave-one-run-out velocity error (recorded in the model's
     ``validation``), so the held-out scenario plays no part in the choice.
+    The training range of the mass distribution's residual is the larger of
+    the training states' own and ``leave_one_run_out_residual`` (both in
+    ``validation``).
     """
     from surrogate.rom.container import Container
 
@@ -380,6 +397,12 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         best = candidates[0]
     model = _fit(grid, Container.from_dict(meta["container"]), samples,
                  np.ones(samples["run"].size, dtype=bool), *best)
+    if np.unique(samples["run"]).size > 1:
+        seen = model.ranges["mass_distribution_residual"][1]
+        unseen = leave_one_run_out_residual(samples, best[0])
+        model.ranges["mass_distribution_residual"] = [0.0, max(seen, unseen)]
+        validation["mass_distribution_residual_max"] = {"training_states": seen,
+                                                        "unseen_runs": unseen}
     model.validation = validation
     model.dem_config = meta.get("dem_config")
     if "dispersion_fit" in samples:

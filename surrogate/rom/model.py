@@ -31,7 +31,9 @@ JSON header with the format version, the grid, the options and the training
 ranges of every input. ``predict`` warns (``OutOfTrainingRange``) naming the
 input and its range when an input lies outside what the model was trained on:
 discharge rate, inflow rate, held mass, and the mass distribution (relative
-residual of its POD projection above the training maximum).
+residual of its POD projection above the training maximum; ``minetwin rom
+train`` widens that maximum to what states of a run left out of the fit show,
+``surrogate.rom.evaluate.leave_one_run_out_residual``).
 """
 
 from __future__ import annotations
@@ -77,6 +79,16 @@ def _pod(basis: tuple, modes: int):
     scale = singular[:modes] / np.sqrt(count)
     scale = np.where(scale > 0, scale, 1.0)
     return mean, vt[:modes].T.copy(), scale
+
+
+def pod_residual(basis: tuple, modes: int, mass) -> np.ndarray:
+    """Relative norm of the part of each mass field of ``mass`` (S, cells) that the
+    first ``modes`` of a (centred) ``pod_basis`` do not span."""
+    mean, phi, _ = _pod(basis, modes)
+    centred = np.asarray(mass, dtype=np.float64).reshape(len(mass), -1) - mean
+    norm = np.linalg.norm(centred + mean, axis=1)
+    rest = centred - (centred @ phi) @ phi.T
+    return np.linalg.norm(rest, axis=1) / np.where(norm > 0, norm, 1.0)
 
 
 class RomModel:
