@@ -34,8 +34,7 @@ setup: $(STAMP) $(FMU_STAMP)
 # The monitor's screenshots of the paper-scale pile need Debian's chromium (make test-prereqs).
 demo: setup
 	$(BIN)/minetwin simulate examples/step_response.toml --until 1200 --out $(OUT)/demo/mine
-	$(BIN)/minetwin integration-test --duration 30 --speed 1 \
-	  --config opcua_server/config/prefilled.toml --out $(OUT)/demo/integration
+	$(BIN)/minetwin integration-test --duration 60 --speed 1 --out $(OUT)/demo/integration
 	if [ -x /usr/bin/chromium ]; then \
 	  $(BIN)/python examples/monitor_demo.py --out $(OUT)/demo/monitor \
 	    --scenario examples/paper_scale.toml --speed 25 --seconds 20; \
@@ -44,8 +43,10 @@ demo: setup
 	@echo "demo: done. What it wrote:"
 	@echo "  $(OUT)/demo/mine/         the paper's plant, 1200 s: overview.png, summary.json,"
 	@echo "                         timeseries.parquet, events.sqlite (minetwin events summary ...)"
-	@echo "  $(OUT)/demo/integration/  mock 800xA <-> FIFO stockpile over OPC UA, 1,500 t at the start:"
-	@echo "                         report.json (ids lost or duplicated, mass balance, lag), plots, logs"
+	@echo "  $(OUT)/demo/integration/  the paper's integration test, 60 s at real time: mock 800xA <->"
+	@echo "                         ROM stockpile (paper-scale, DEM surface layer, 1,500 t at the start)"
+	@echo "                         over OPC UA, and the monitor: report.json (ids lost or duplicated,"
+	@echo "                         mass balance, lag), plots, logs; --model fifo for the FIFO queue"
 	@echo "  $(OUT)/demo/monitor/      screenshots of the monitor beside the paper-scale plant"
 	@echo "  next: make figures (every figure, ~8 min), make test, minetwin --help"
 

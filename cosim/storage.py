@@ -118,6 +118,13 @@ class StorageModel:
         """Particles (already owned by this storage) enter at time ``t``."""
         raise NotImplementedError
 
+    def prefill(self, ids, t: float) -> None:
+        """Particles the pile held before the run began (earlier production), at
+        time ``t``: by default received as any arrival. A model with geometry may
+        lay them at once as its inlet would have built the pile, at rest; they are
+        no part of its inflow."""
+        self.receive(ids, t)
+
     def held_ids(self) -> np.ndarray:
         """Ids of the particles held, in the model's order of leaving."""
         raise NotImplementedError

@@ -224,6 +224,8 @@ class StockpileClient:
                            outflow)
             return True
 
+        if not asset.started:
+            self._receive_initial_inventory()
         batch = asset.storage.arrivals_join_the_tail
         in_time = True
         while True:
@@ -303,16 +305,34 @@ class StockpileClient:
         if storage.held_mass() <= storage.feeder_credit_kg + asset.discharge_rate * (end - start):
             return False  # the feeder could reach this slice's arrivals or empty the pile
         if records:
-            columns = {key: [r[key] for r in records]
-                       for key in ("tracking_id", "mass", "grade", "hardness", "source", "time")}
-            asset.receive_bins(np.array(columns["tracking_id"], dtype=np.uint64),
-                               columns["mass"], columns["grade"], columns["hardness"],
-                               columns["source"], np.maximum(columns["time"], start))
-            for r in records:
-                del self.inbox[r["sequence"]]
-            self.state.last_applied = records[-1]["sequence"]
+            self._receive_together(records)
         self._step(end - start, outflow)
         return True
+
+    def _receive_together(self, records: list) -> None:
+        """Inbound records received in one batch (each at its own time, none before
+        the asset's), applied in sequence order."""
+        columns = {key: [r[key] for r in records]
+                   for key in ("tracking_id", "mass", "grade", "hardness", "source", "time")}
+        self.asset.receive_bins(np.array(columns["tracking_id"], dtype=np.uint64),
+                                columns["mass"], columns["grade"], columns["hardness"],
+                                columns["source"], np.maximum(columns["time"], self.asset.time))
+        for r in records:
+            del self.inbox[r["sequence"]]
+        self.state.last_applied = records[-1]["sequence"]
+
+    def _receive_initial_inventory(self) -> None:
+        """The records read so far that are due before the asset's first step (the
+        plant's initial inventory, all at its start), received in one batch: the
+        pile the plant started with, laid at once (``StorageModel.prefill``)
+        rather than one bin at a time."""
+        records, seq = [], self.state.last_applied + 1
+        while (record := self.inbox.get(seq)) is not None and \
+                record["time"] <= self.asset.time + 1e-12:
+            records.append(record)
+            seq += 1
+        if records:
+            self._receive_together(records)
 
     # ------------------------------------------------------------- OPC UA
     async def _connect(self):

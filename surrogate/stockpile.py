@@ -98,6 +98,9 @@ class StockpileAsset:
         self.storage.bind(self.particles, STOCKPILE_OWNER)
         self.feed_f = rosin_rammler(feed_size_m)
         self.time = 0.0
+        self.started = False
+        """False until the first ``step``: bins received before it are the pile's
+        initial inventory (``StorageModel.prefill``)."""
         self.discharge_rate = 0.0
         self.mass_in_kg = 0.0
         self.mass_out_kg = 0.0
@@ -128,7 +131,7 @@ class StockpileAsset:
             mass=masses, f=self.feed_f, grade=grade, hardness=hardness,
             owner=STOCKPILE_OWNER, time=self.time,
             tracking_id=np.uint64(tracking_id), source=int(source))
-        self.storage.receive(ids, self.time)
+        self._arrive(ids, self.time)
         self.mass_in_kg += mass_kg
         self.lots.add("in", self.time, [int(tracking_id)], [mass_kg], [float(grade)],
                       [int(source)], [count])
@@ -170,12 +173,20 @@ class StockpileAsset:
             time=np.repeat(times, counts),
             tracking_id=np.repeat(tids.astype(np.uint64), counts),
             source=np.repeat(np.asarray(sources, dtype=np.int64), counts))
-        self.storage.receive(ids, float(times[-1]))
+        self._arrive(ids, float(times[-1]))
         self.mass_in_kg += float(masses.sum())
         self.lots.add("in", times, tids.astype(np.uint64), masses,
                       np.asarray(grades, dtype=np.float64), np.asarray(sources, dtype=np.int64),
                       counts)
         return ids
+
+    def _arrive(self, ids: np.ndarray, t: float) -> None:
+        # bins that come before the first step are what the pile held when the
+        # plant started (the mock 800xA's sp201.initial_inventory_kg)
+        if self.started:
+            self.storage.receive(ids, t)
+        else:
+            self.storage.prefill(ids, t)
 
     # ----------------------------------------------------------------- step
     def set_discharge_rate(self, rate_kg_s: float) -> None:
@@ -190,6 +201,7 @@ class StockpileAsset:
         and ``particle_ids`` of the removed particles.
         """
         dt = float(check_finite_range("dt", dt, 0.0, unit="s"))
+        self.started = True
         leaving = self.storage.step(self.time, dt, self.discharge_rate)
         self.time += dt
         outflow = self._remove(leaving)

@@ -195,7 +195,7 @@ def test_bad_model_file_is_refused_by_name(tmp_path):
     with pytest.raises(ValidationError, match="^model: "):
         RomModel.load(bad)
     with pytest.raises(ValidationError, match="^model: "):
-        RomStorage().receive(np.array([1], dtype=np.uint64), 0.0)
+        RomStorage(bad)
 
 
 @pytest.mark.filterwarnings("ignore::surrogate.rom.model.OutOfTrainingRange")

@@ -5,10 +5,14 @@ and ``monitor`` as separate processes on 127.0.0.1, runs for ``--duration``
 simulated seconds, freezes the plant clock, lets the stockpile catch up,
 stops everything and writes ``DIR/report.json`` and PNG plots.
 
-``--model NAME`` picks the stockpile's storage model and each ``--option
-KEY=VALUE`` is passed to it (``minetwin stockpile --model-option``), e.g.
-``--model rom --option model=out/rom/model.npz``; the options are tried on a
-stockpile in this process first, so a bad one fails before anything starts.
+By default it is the paper's test: the ROM stockpile (the shipped paper-scale
+model with its DEM surface layer) holding 1,500 t when the plant starts
+(``opcua_server/config/prefilled.toml``). ``--model NAME`` picks another
+storage model (``fifo``, ``mixing``, ``dem`` or a plug-in's) and each
+``--option KEY=VALUE`` is passed to it (``minetwin stockpile
+--model-option``), e.g. ``--model rom --option model=out/rom/model.npz`` for a
+ROM of one's own; the options are tried on a stockpile in this process first,
+so a bad one fails before anything starts.
 The report records the model, its options, the model the stockpile process
 says it ran, and the warnings it printed (a ROM extrapolating outside its
 training ranges says so).
@@ -24,6 +28,9 @@ from cosim import jsonio
 
 MAX_LAG_OK_S = 1.0
 """Largest lag [s of simulation] behind the server's clock still called keeping up."""
+
+PREFILLED_CONFIG = Path(__file__).resolve().parents[2] / "opcua_server" / "config" / "prefilled.toml"
+"""The default plant: the mock 800xA's default one with 1,500 t in the pile at the start."""
 
 WARNING_LINE = re.compile(r"^\S+:\d+: (\w+): (.+)$")
 """A line of Python's default warning format: ``file:line: Category: message``."""
@@ -41,13 +48,17 @@ def register(subparsers) -> None:
     parser.add_argument("--speed", type=float, default=1.0,
                         help="simulation seconds per wall second (default 1: real time)")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
-    parser.add_argument("--model", default="fifo", help="storage model (default fifo)")
+    parser.add_argument("--model", default="rom",
+                        help="storage model: rom (default: the shipped paper-scale ROM with its "
+                             "DEM surface layer), fifo, mixing, dem or any registered name")
     parser.add_argument("--option", "--model-option", dest="option", action="append", default=[],
                         metavar="KEY=VALUE",
                         help="keyword option of the storage model, repeatable, passed to the "
                              "stockpile as its --model-option (e.g. model=out/rom/model.npz "
                              "for rom); checked before any process starts")
-    parser.add_argument("--config", type=Path, help="server configuration TOML")
+    parser.add_argument("--config", type=Path, default=PREFILLED_CONFIG,
+                        help="server configuration TOML (default: opcua_server/config/"
+                             "prefilled.toml, 1,500 t in the pile at the start)")
     parser.add_argument("--no-monitor", action="store_true", help="do not start the monitor")
     parser.set_defaults(handler=run)
 

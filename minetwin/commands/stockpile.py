@@ -17,8 +17,9 @@ def register(subparsers) -> None:
                     "variable. Stops on SIGINT/SIGTERM.")
     parser.add_argument("--server", required=True, metavar="URL",
                         help="opc.tcp:// endpoint of the plant server")
-    parser.add_argument("--model", default="fifo",
-                        help="storage model: fifo, mixing, rom, dem or any registered name")
+    parser.add_argument("--model", default="rom",
+                        help="storage model: rom (default: the shipped paper-scale ROM), fifo, "
+                             "mixing, dem or any registered name")
     parser.add_argument("--model-option", action="append", default=[], metavar="KEY=VALUE",
                         help="keyword option of the storage model, repeatable (e.g. "
                              "model=out/rom/model.npz for rom)")

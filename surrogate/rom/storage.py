@@ -50,7 +50,9 @@ Parameters
 ----------
 model : RomModel or str or Path, optional
     The trained model or its file (``minetwin rom train``), loaded by
-    ``load``; may also be given later to ``load``.
+    ``load``. Default: ``DEFAULT_MODEL``, the paper-scale ROM that ships with
+    the package (the paper's 2 kt, 60 m pile; provenance in its header and
+    ``surrogate/rom/README.md``, "The shipped model").
 update_interval : float
     Seconds between velocity predictions (default 1.0 s).
 max_step : float
@@ -72,9 +74,9 @@ fallback : {None, "dem"}
     carries over, so held and discharged mass and ids stay exact.
 fallback_config : DemConfig or dict or str, optional
     The DEM of the fall-back (a ``DemConfig``, a dict of its fields or a
-    TOML path); default ``surrogate.rom.doe.training_config()``, the
-    stockpile the ROM was trained on. Its floor must span the model's
-    container.
+    TOML path); default the model's training DEM (``RomModel.dem_config``),
+    else ``surrogate.rom.doe.training_config()``. Its floor must span the
+    model's container.
 surface : {"dem", "rule"}
     Surface layer (default "dem", see above).
 surface_config : DemConfig or dict or str, optional
@@ -105,6 +107,10 @@ from surrogate.rom.model import OutOfTrainingRange, RomModel
 from surrogate.rom.surface import (column_width, deposit, feeder_take, settle,
                                    surface_heights)
 from surrogate.rom.surface_dem import SurfaceDem
+
+DEFAULT_MODEL = Path(__file__).parent / "data" / "paper_rom.npz"
+"""The shipped paper-scale ROM (``minetwin rom train`` on the committed paper design;
+the command that regenerates it is in its header's ``provenance``)."""
 
 RANGE_CHECK_INTERVAL = 10.0
 """Seconds between checks of the ROM inputs against the training ranges."""
@@ -176,8 +182,7 @@ class RomStorage(StorageModel):
         self.out_of_range: dict[str, str] = {}
         self.out_of_range_now: tuple[str, ...] = ()
         self._next_range_check = -np.inf
-        if model is not None:
-            self.load(model)
+        self.load(DEFAULT_MODEL if model is None else model)
 
     # ------------------------------------------------------------ set-up
     def load(self, model) -> "RomStorage":
@@ -200,18 +205,11 @@ class RomStorage(StorageModel):
                                           rng=self.rng)
         return self
 
-    def _need_model(self) -> RomModel:
-        if self.model is None:
-            raise ValidationError("model", "a trained ROM (RomStorage(model=PATH) or load(PATH); "
-                                  "train one with `minetwin rom train`)")
-        return self.model
-
     # ------------------------------------------------------------ inflow
     def receive(self, ids, t: float) -> None:
         """Particles arriving at the inlet enter the surface layer (module docstring)."""
         if self.dem_storage is not None:
             return self.dem_storage.receive(ids, t)
-        self._need_model()
         ids = np.asarray(ids, dtype=np.uint64)
         if ids.size == 0:
             return
@@ -225,6 +223,21 @@ class RomStorage(StorageModel):
             heights = surface_heights(self.container, width, self._pos, self._mass)
             self._append(ids, mass, deposit(self.container, width, heights, mass, self.rng))
         self._receipts.append((float(t), float(mass.sum())))
+
+    def prefill(self, ids, t: float) -> None:
+        """The pile's earlier production (``StorageModel.prefill``): laid at once by
+        the sandpile rule, under the inlet at the angle of repose (the pile the
+        inlet builds, settled), not dropped through the surface layer, and not
+        counted in the inflow rate the model is fed."""
+        if self.dem_storage is not None:
+            return self.dem_storage.prefill(ids, t)
+        ids = np.asarray(ids, dtype=np.uint64)
+        if ids.size == 0:
+            return
+        mass = self.particles.mass[self.particles.slots(ids)].copy()
+        width = self._column_width(mass)
+        heights = surface_heights(self.container, width, self._pos, self._mass)
+        self._append(ids, mass, deposit(self.container, width, heights, mass, self.rng))
 
     def _land(self, ids, mass, position) -> None:
         """Particles whose impact the surface DEM resolved roll on from where it
@@ -252,7 +265,6 @@ class RomStorage(StorageModel):
         if self.dem_storage is not None:
             raise ValidationError("place", "calls before the hand-over to the DEM",
                                   f"the storage runs as DEM since t = {self.fallen_back_at} s")
-        self._need_model()
         ids = np.asarray(ids, dtype=np.uint64)
         position = np.asarray(position, dtype=np.float64).reshape(-1, 2)
         if position.shape[0] != ids.size:
@@ -295,7 +307,7 @@ class RomStorage(StorageModel):
         (``OutOfTrainingRange``) and its message kept in ``out_of_range``;
         ``out_of_range_now`` names the inputs outside at the latest check.
         """
-        model = self._need_model()
+        model = self.model
         mass = mass_field(model.grid, self._pos, self._mass)
         inflow = self.inflow_rate(t)
         if t >= self._next_range_check or discharge_rate != self._field_rate:
@@ -362,7 +374,6 @@ class RomStorage(StorageModel):
         """Advance ``dt`` [s]; return the ids that leave through the outlet, in order."""
         rate = check_discharge_rate(discharge_rate)
         dt = float(check_finite_range("dt", dt, 0.0, unit="s"))
-        self._need_model()
         if self.fallback == "dem" and self.dem_storage is None and self._ids.size:
             self._refresh_field(t, rate)
             if self.out_of_range:
@@ -412,7 +423,7 @@ class RomStorage(StorageModel):
         from surrogate.dem import Dem
         from surrogate.dem_storage import DemStorage
 
-        config = _dem_config(self.fallback_config)
+        config = _dem_config(self.fallback_config or self.model.dem_config)
         c = self.container
         half = 0.5 * config.floor_width
         # the DEM's floor is y = 0 centred on x = 0: the ROM's container must lie on it
@@ -474,7 +485,6 @@ class RomStorage(StorageModel):
             return self.dem_storage.predict(horizon, discharge_rate)
         rate = check_discharge_rate(discharge_rate)
         horizon = float(check_finite_range("horizon", horizon, 0.0, unit="s"))
-        self._need_model()
         position, mass, index = self._pos.copy(), self._mass.copy(), np.arange(self._ids.size)
         credit, taken_all, drained = self._credit_kg, [], self._drained.copy()
         substeps = max(1, int(np.ceil(horizon / self.max_step)))
@@ -506,7 +516,7 @@ class RomStorage(StorageModel):
         as last predicted (after a hand-over: the DEM's mass-weighted particle
         velocity, 0 where empty), ``grade`` and ``hardness`` (mass-weighted,
         NaN if empty)."""
-        model = self._need_model()
+        model = self.model
         grid = model.grid
         if self.dem_storage is not None:
             dem = self.dem_storage.dem
