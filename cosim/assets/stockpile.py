@@ -89,6 +89,7 @@ class Stockpile(Asset):
         self.model = model.bind(plant.particles, self.owner)
         self.fidelity = None  # the choice of a model = "auto" stockpile (cosim.fidelity)
         self.switcher = switcher
+        self._prefilling = False  # inside ``prefill``: the storage model lays what arrives
         self.capacity = float(capacity)
         self._schedules = {}
         for outlet, (_, discharge) in outlets.items():
@@ -123,9 +124,22 @@ class Stockpile(Asset):
         k = int(np.searchsorted(times, t, side="right")) - 1
         return float(rates[k]) if k >= 0 else 0.0
 
+    def prefill(self, ids: np.ndarray, t: float) -> None:
+        """The pile's earlier production at time ``t``: received through the first
+        inlet ("enter" events) and laid by the storage model as the pile it held
+        (``StorageModel.prefill``), not as inflow."""
+        self._prefilling = True
+        try:
+            self.receive(ids, t)
+        finally:
+            self._prefilling = False
+
     def _accept(self, ids: np.ndarray, t: float, inlet: str) -> None:
         self._held_kg += float(self.particles.mass[self.particles.slots(ids)].sum())
-        self.model.receive(ids, t)
+        if self._prefilling:
+            self.model.prefill(ids, t)
+        else:
+            self.model.receive(ids, t)
 
     def step(self, t: float, dt: float) -> None:
         total = 0.0
@@ -432,6 +446,6 @@ def fill_stockpile(stockpile, truck, fragmentation_map, mass: float) -> None:
         ids = truck.route[k % len(truck.route)].take(load, 0.0)
         slots = store.slots(ids)
         store.f[slots] = apply_fragmentation(store.f[slots], fragmentation_map)
-        stockpile.receive(ids, 0.0)
+        stockpile.prefill(ids, 0.0)
         remaining -= load
         k += 1
