@@ -47,7 +47,7 @@ def test_without_a_dead_band_every_crossing_is_an_alarm(tmp_path):
                     "level_deadband_pct = 0\n")
     book = AlarmBook(load_monitor_config(path))
     for k, held in enumerate([29.0, 30.5, 29.5, 30.5, 28.5]):
-        book.check_row(_row(float(k), held))
+        book.check_row(_row(float(k), held, 0.01))  # inside the default grade band
     assert _states(book) == [(1, "level_high", "CLEARED_UNACK"),
                              (2, "level_high", "CLEARED_UNACK")]
 

@@ -100,3 +100,18 @@ def test_a_pile_held_before_the_first_step_is_laid_at_once_inside_the_training_r
     asset.step(1.0)
     late = asset.receive_bin(bins + 1, 1200.0, 0.006, 1.0)
     assert len(storage.surface_dem) == late.size  # falling from the inlet
+
+
+def test_the_mine_lays_a_rom_stockpiles_initial_fill_as_a_pile():
+    """The paper-scale mine's 1.9 kt of earlier production goes straight into the
+    ROM's bulk (``Stockpile.prefill``), not through its surface DEM."""
+    from cosim.scenario import build, load
+
+    simulation = build(load(ROOT / "examples" / "paper_scale.toml"), storage_model="rom",
+                       progress=False)
+    try:
+        pile = simulation.assets["stockpile"]
+        assert pile.model.name == "rom" and len(pile.model.surface_dem) == 0
+        assert pile.model.held_mass() == pytest.approx(1.9e6, rel=1e-12)
+    finally:
+        simulation.close()

@@ -312,7 +312,7 @@ function rampColour(u) {
 }
 
 // Shown value and unit of each colouring (grade in %, like everywhere else).
-const SHOWN = {grade: {scale: 100, label: "grade [%]", digits: 0},
+const SHOWN = {grade: {scale: 100, label: "grade [%]", digits: 2},
                hardness: {scale: 1, label: "hardness [-]", digits: 3},
                residence_time: {scale: 1, label: "residence time [s]", digits: 0},
                origin: {scale: 1, label: "origin", digits: 0}};
@@ -328,7 +328,6 @@ function colouring(values, attribute) {
     return {attribute, categorical: distinct, colour: (v) => CATEGORIES[index.get(v) ?? 0]};
   }
   let lo = finite.length ? Math.min(...finite) : 0, hi = finite.length ? Math.max(...finite) : 1;
-  if (attribute === "grade") { lo = 0; hi = 1; }
   if (attribute === "residence_time") lo = 0;
   if (!(hi > lo)) hi = lo + 1;
   return {attribute, lo, hi, colour: (v) => rampColour((v - lo) / (hi - lo))};
