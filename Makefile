@@ -34,11 +34,13 @@ setup: $(STAMP) $(FMU_STAMP)
 # The monitor's screenshots of the paper-scale pile need Debian's chromium (make test-prereqs).
 demo: setup
 	$(BIN)/minetwin simulate examples/step_response.toml --until 1200 --out $(OUT)/demo/mine
-	$(BIN)/minetwin integration-test --duration 60 --speed 1 --out $(OUT)/demo/integration
 	if [ -x /usr/bin/chromium ]; then \
+	  $(BIN)/python examples/monitor_demo.py --out $(OUT)/demo/monitor_integration \
+	    --integration-test $(OUT)/demo/integration --duration 60 --seconds 30 && \
 	  $(BIN)/python examples/monitor_demo.py --out $(OUT)/demo/monitor \
 	    --scenario examples/paper_scale.toml --speed 25 --seconds 20; \
-	else echo "demo: no monitor screenshots: /usr/bin/chromium missing (make test-prereqs)"; fi
+	else echo "demo: no monitor screenshots: /usr/bin/chromium missing (make test-prereqs)"; \
+	  $(BIN)/minetwin integration-test --duration 60 --speed 1 --out $(OUT)/demo/integration; fi
 	@echo ""
 	@echo "demo: done. What it wrote:"
 	@echo "  $(OUT)/demo/mine/         the paper's plant, 1200 s: overview.png, summary.json,"
@@ -47,6 +49,7 @@ demo: setup
 	@echo "                         ROM stockpile (paper-scale, DEM surface layer, 1,500 t at the start)"
 	@echo "                         over OPC UA, and the monitor: report.json (ids lost or duplicated,"
 	@echo "                         mass balance, lag), plots, logs; --model fifo for the FIFO queue"
+	@echo "  $(OUT)/demo/monitor_integration/  screenshots of the monitor 30 s into that test"
 	@echo "  $(OUT)/demo/monitor/      screenshots of the monitor beside the paper-scale plant"
 	@echo "  next: make figures (every figure, ~8 min), make test, minetwin --help"
 

@@ -11,11 +11,17 @@ the page on a 1366 x 768 laptop and a 390 px phone
 (``OUT/monitor_laptop.png``, ``OUT/monitor_phone.png``).
 Everything is stopped at the end. With ``--scenario`` the stockpile is the
 mine simulator's (``demo_stockpile --scenario``), e.g. the paper-scale
-2,000 t pile of ``examples/paper_scale.toml``.
+2,000 t pile of ``examples/paper_scale.toml``. With ``--integration-test DIR``
+it is the paper's integration test itself (``minetwin integration-test
+--duration S --speed 1 --out DIR``: the mock 800xA, the shipped paper-scale
+ROM stockpile holding 1,500 t, over OPC UA), screenshot ``--seconds`` into
+the run; the test then runs to its end and writes its report.
 
     .venv/bin/python examples/monitor_demo.py --out out/monitor [--seconds 20]
     .venv/bin/python examples/monitor_demo.py --out out/monitor_paper \
         --scenario examples/paper_scale.toml --speed 25
+    .venv/bin/python examples/monitor_demo.py --out out/monitor_integration \
+        --integration-test out/integration --duration 60 --seconds 40
 """
 
 from __future__ import annotations
@@ -48,6 +54,25 @@ def start(args, pattern, stream):
     raise SystemExit(f"{args[0]} stopped before serving: {proc.stderr.read()}")
 
 
+def start_integration_test(minetwin: str, out: Path, duration: float):
+    """Start ``minetwin integration-test`` (its monitor left out: the demo starts
+    its own); return it and its stockpile's REST URL, read from its log."""
+    out.mkdir(parents=True, exist_ok=True)
+    log = out / "integration-test.log"
+    with open(log, "w") as err, open(out / "integration-test.json", "w") as report:
+        proc = subprocess.Popen([minetwin, "integration-test", "--duration", f"{duration:g}",
+                                 "--speed", "1", "--out", str(out), "--no-monitor"],
+                                stdout=report, stderr=err, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        match = re.search(r"stockpile REST (http://127\.0\.0\.1:\d+)", log.read_text())
+        if match:
+            return proc, match.group(1)
+        time.sleep(0.2)
+    stop(proc)
+    raise SystemExit(f"integration-test did not start its stockpile: {log.read_text()}")
+
+
 def stop(proc):
     proc.send_signal(signal.SIGTERM)
     try:
@@ -67,7 +92,16 @@ def main(argv=None) -> int:
     parser.add_argument("--scenario", type=Path,
                         help="serve this mine-simulator scenario's stockpile instead of the "
                              "integration test's")
+    parser.add_argument("--integration-test", type=Path, metavar="DIR",
+                        help="screenshot the paper's integration test (minetwin "
+                             "integration-test --out DIR) while it runs")
+    parser.add_argument("--duration", type=float, default=60.0,
+                        help="simulated seconds of --integration-test, at real time (60)")
     args = parser.parse_args(argv)
+    if args.integration_test and not args.seconds < args.duration:
+        print("monitor_demo: error: --seconds must be below --duration with "
+              "--integration-test", file=sys.stderr)
+        return 2
     if not Path(CHROMIUM).exists():
         print(f"monitor_demo: error: {CHROMIUM} missing (apt-get install chromium)",
               file=sys.stderr)
@@ -76,15 +110,19 @@ def main(argv=None) -> int:
 
     args.out.mkdir(parents=True, exist_ok=True)
     processes = []
+    integration = None
+    minetwin = str(Path(sys.executable).with_name("minetwin"))
     try:
         url = args.stockpile
-        if url is None:
+        if args.integration_test:
+            integration, url = start_integration_test(minetwin, args.integration_test,
+                                                      args.duration)
+        elif url is None:
             scenario = ["--scenario", str(args.scenario)] if args.scenario else []
             stockpile, url = start([sys.executable, "-m", "minetwin.demo_stockpile", "--port", "0",
                                     "--speed", str(args.speed), *scenario],
                                    r"http://127\.0\.0\.1:\d+", "stdout")
             processes.append(stockpile)
-        minetwin = str(Path(sys.executable).with_name("minetwin"))
         monitor, page_url = start([minetwin, "monitor", "--stockpile", url, "--port", "0"],
                                   r"http://127\.0\.0\.1:\d+/", "stderr")
         processes.append(monitor)
@@ -124,6 +162,12 @@ def main(argv=None) -> int:
     finally:
         for proc in processes:
             stop(proc)
+        if integration is not None and sys.exc_info()[0] is not None:
+            stop(integration)
+    if integration is not None:  # the test runs to its end and audits the exchange
+        code = integration.wait(timeout=args.duration * 3 + 300)
+        print(f"integration-test: exit {code}; {args.integration_test / 'report.json'}")
+        return code
     return 0
 
 

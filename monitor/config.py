@@ -12,8 +12,8 @@ capacity_t = 2000.0        # storage capacity [t]: fill level = held mass / capa
 level_high_pct = 90.0      # LEVEL HIGH above this fill level [% of capacity]
 level_low_pct = 10.0       # LEVEL LOW below this fill level [% of capacity]
 level_deadband_pct = 2.0   # a level alarm clears this far back inside [% of capacity]
-grade_low_pct = 0.5        # GRADE LOW below this grade of the pile [%]
-grade_high_pct = 1.5       # GRADE HIGH above this grade of the pile [%]
+grade_low_pct = 0.0        # GRADE LOW below this grade of the pile [%] (0: off)
+grade_high_pct = 100.0     # GRADE HIGH above this grade of the pile [%] (100: off)
 grade_deadband_pct = 0.05  # a grade alarm clears this far back inside [percentage points]
 check_interval_s = 1.0     # how often the monitor reads the stockpile for alarms [s, wall]
 [trends]
@@ -21,11 +21,12 @@ window_s = 0.0             # time range the trends open with [s]; 0: the whole r
 ```
 
 The default capacity of 2,000 t is the paper's stockpile ("The stockpile
-holds up to 2,000 tons", section "Integration test"); the default grade band,
-0.5-1.5 %, is that of a porphyry copper ore (the integration test's feed lots
-carry 0.6 and 1.2 %). The level's default dead band is EEMUA 191's starting
-value (2 %, ``monitor.alarms``); the grade's, 0.05 percentage points, is 5 % of
-its band; a dead band must be smaller than the distance
+holds up to 2,000 tons", section "Integration test"). The grade alarms are
+off by default (0-100 %): a grade band belongs to an ore (a porphyry copper
+ore's might be 0.5-1.5 %, as the integration test's feed lots of 0.6 and
+1.2 %; the example mine's ore bodies carry 20 and 80 %), so set it for yours.
+The level's default dead band is EEMUA 191's starting value (2 %,
+``monitor.alarms``); the grade's is 0.05 percentage points; a dead band must be smaller than the distance
 between its low and high limits. Bad values raise ``ValidationError`` naming
 the key, e.g. ``alarms.level_high_pct``.
 """
@@ -41,7 +42,7 @@ from cosim.tomlfile import read_toml
 DEFAULTS = {
     "stockpile": {"capacity_t": 2000.0},
     "alarms": {"level_high_pct": 90.0, "level_low_pct": 10.0, "level_deadband_pct": 2.0,
-               "grade_low_pct": 0.5, "grade_high_pct": 1.5, "grade_deadband_pct": 0.05,
+               "grade_low_pct": 0.0, "grade_high_pct": 100.0, "grade_deadband_pct": 0.05,
                "check_interval_s": 1.0},
     "trends": {"window_s": 0.0},
 }

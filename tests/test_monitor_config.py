@@ -30,7 +30,7 @@ def test_defaults_and_overrides(tmp_path):
     ("[stockpile]\ncapacity_t = nan\n", "stockpile.capacity_t"),
     ("[alarms]\nlevel_high_pct = 101\n", "alarms.level_high_pct"),
     ("[alarms]\nlevel_low_pct = 95\n", "alarms.level_low_pct"),
-    ("[alarms]\ngrade_low_pct = 80\n", "alarms.grade_low_pct"),
+    ("[alarms]\ngrade_low_pct = 80\ngrade_high_pct = 70\n", "alarms.grade_low_pct"),
     ("[alarms]\nsiren = true\n", "alarms.siren"),
     ("[screen]\nwidth = 3\n", "screen"),
     ("[trends]\nwindow_s = -1\n", "trends.window_s"),
