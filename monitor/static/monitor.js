@@ -496,7 +496,7 @@ const TRENDS = [
    series: [{label: "held mass", value: rowsOf("held_mass_kg", 1e-3), colour: "#f0b429"}],
    limits: (c) => [["high level", c.alarms.level_high_pct / 100 * c.stockpile.capacity_t],
                    ["low level", c.alarms.level_low_pct / 100 * c.stockpile.capacity_t]]},
-  {id: "grade", title: "Grade", unit: "%", digits: 2, range: [0, 100],
+  {id: "grade", title: "Grade", unit: "%", digits: 2, zero: true,
    series: [{label: "grade", value: rowsOf("grade", 100), colour: "#3fb950"}],
    limits: (c) => [["grade high", c.alarms.grade_high_pct], ["grade low", c.alarms.grade_low_pct]]},
   {id: "hardness", title: "Hardness (relative)", unit: "-", digits: 3, minSpan: 0.1,
