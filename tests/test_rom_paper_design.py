@@ -435,6 +435,11 @@ def test_an_exported_heldout_design_is_laid_out_and_scored(reduced_run, heldout_
                             capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     summary = _strict((tmp_path / "eval" / "summary.json").read_text())
+    # the command scored on its process pool: the same scores as in this process
+    here = evaluate.evaluate(evaluate.RomModel.load(model), tmp_path / "eval" / "scenes",
+                             rom_options={"surface": "dem"})
+    for key in ("tracking_error", "grade_error", "hardness_error"):
+        assert summary[key] == here[key], key
     scored = summary["scenarios"]["small_heldout_q1000"]
     assert scored["dem_replicas"] == pd.HELDOUT_REPLICAS
     assert set(scored["tracking_error"]) == {"fifo", "mixing", "rom"}

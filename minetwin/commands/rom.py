@@ -134,7 +134,9 @@ def run_evaluate(args) -> int:
             for scene, reason in layout["skipped"].items():
                 _progress(f"held-out scene {scene} left out: {reason}")
             data = Path(args.out) / "scenes"
-    summary = evaluate(model, data, progress=_progress, rom_options={"surface": args.surface})
+    with executors.make(args) as executor:  # the held-out scenes are scored in parallel
+        summary = evaluate(model, data, progress=_progress,
+                           rom_options={"surface": args.surface}, executor=executor)
     path = write_summary(summary, args.out or data)
     shown = {k: summary[k] for k in ("tracking_error", "tracking_error_dem_noise_floor",
                                      "velocity_field_rel_error",

@@ -614,12 +614,20 @@ def _mean(values: list):
     return float(np.mean(values))
 
 
-def evaluate(model: RomModel, directory, progress=None, rom_options=None) -> dict:
+def evaluate(model: RomModel, directory, progress=None, rom_options=None,
+             executor=None) -> dict:
     """Score FIFO, mixing and the ROM on every held-out scenario; the summary dict
-    (aggregation: ``AGGREGATE_NOTE``)."""
+    (aggregation: ``AGGREGATE_NOTE``). With ``executor`` (``cosim.batch``) the
+    scenarios are scored as parallel tasks; the scores are the same, only the
+    wall times differ (each is measured in its own worker)."""
+    metas = heldout_scenarios(directory)
+    calls = [(evaluate_scenario, {"model": model, "heldout": Path(directory) / meta["name"],
+                                  "progress": progress, "rom_options": rom_options})
+             for meta in metas]
+    results = (batch.run_calls(calls, executor) if executor is not None
+               else [function(**kwargs) for function, kwargs in calls])
     scenarios = {}
-    for meta in heldout_scenarios(directory):
-        result = evaluate_scenario(model, Path(directory) / meta["name"], progress, rom_options)
+    for meta, result in zip(metas, results):
         result["scenario"] = meta
         result["targets"] = _targets(result)
         scenarios[meta["name"]] = result
