@@ -37,8 +37,11 @@ from surrogate.rom import paper_design
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[1]
+# 30 s of plant time, about 3 s of wall time per finished run, so that the worker the
+# test kills is still running one: with 10 s (about 1 s per run) a loaded clean-clone
+# run reported no run to repeat, most likely because all had ended before the kill
 SWEEP = ["examples/step_response.toml", "--set", "assets.left.length_m=300,0.5",
-         "--set", "assets.trucks.trucks.0.start_s=0", "--seeds", "2", "--until", "10"]
+         "--set", "assets.trucks.trucks.0.start_s=0", "--seeds", "2", "--until", "30"]
 WALL_KEYS = {"wall_s", "realtime_factor", "host", "code_version", "folder"}
 # A shell without job control starts background commands with SIGINT ignored, and
 # Python keeps an ignored SIGINT ignored: under `make test &` the sweep would not see
@@ -159,7 +162,7 @@ def test_a_sweep_with_a_failing_run_on_ray_equals_the_local_one_interrupted(clus
         assert list(frame["set.assets.left.length_m"]) == [300.0, 300.0, 0.5, 0.5]
         assert frame["error"].iloc[2].startswith("CosimulationError")
         assert "ore body exhausted" in frame["error"].iloc[2]
-        assert (frame["simulated_s"].iloc[:2] == 10.0).all()
+        assert (frame["simulated_s"].iloc[:2] == 30.0).all()
     pd.testing.assert_frame_equal(_without_wall_time(tables[0]), _without_wall_time(tables[1]),
                                   check_exact=True)
     sweep = json.loads((remote / "sweep.json").read_text())
