@@ -117,8 +117,10 @@ def write_layout(data, out, progress=None) -> dict:
                        "replicas": [r["name"] for r in records],
                        "design": manifest["design"]})
     if not scenes:
+        why = "; ".join(f"{s}: {r}" for s, r in skipped.items()) or \
+            f"{manifest['runs_done']} of {manifest['runs_total']} runs finished"
         raise ValidationError("--data", "a held-out design with 2 finished replicas of a scene",
-                              f"{data}: " + "; ".join(f"{s}: {r}" for s, r in skipped.items()))
+                              f"{data}: {why}")
     meta = doe.read_meta(data)
     meta.update(heldout_scenarios=scenes, heldout_source=str(data), skipped=skipped)
     (out / "doe.json").write_text(json.dumps(meta, indent=1, allow_nan=False))
