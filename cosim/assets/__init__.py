@@ -169,12 +169,16 @@ class Asset(Component):
         if ids.size == 0:
             return
         inlet = self.inlets[0] if inlet is None else inlet
+        self._enter(ids, t, inlet)
+        self._accept(ids, t, inlet)
+
+    def _enter(self, ids: np.ndarray, t: float, inlet: str) -> None:
+        """The new owner, the inlet's location and the "enter" event of ``ids``."""
         location = self.inlet_locations[inlet]
         slots = self.particles.slots(ids)
         self.particles.set_owner(slots, self.owner, t)
         self.particles.position[slots] = location
         self.plant.record("enter", self.name, t, slots, location)
-        self._accept(ids, t, inlet)
 
     def _accept(self, ids: np.ndarray, t: float, inlet: str) -> None:
         """Hook: queue the received particles (subclasses)."""

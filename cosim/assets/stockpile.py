@@ -89,7 +89,6 @@ class Stockpile(Asset):
         self.model = model.bind(plant.particles, self.owner)
         self.fidelity = None  # the choice of a model = "auto" stockpile (cosim.fidelity)
         self.switcher = switcher
-        self._prefilling = False  # inside ``prefill``: the storage model lays what arrives
         self.capacity = float(capacity)
         self._schedules = {}
         for outlet, (_, discharge) in outlets.items():
@@ -128,18 +127,15 @@ class Stockpile(Asset):
         """The pile's earlier production at time ``t``: received through the first
         inlet ("enter" events) and laid by the storage model as the pile it held
         (``StorageModel.prefill``), not as inflow."""
-        self._prefilling = True
-        try:
-            self.receive(ids, t)
-        finally:
-            self._prefilling = False
+        if ids.size == 0:
+            return
+        self._enter(ids, t, self.inlets[0])
+        self._held_kg += float(self.particles.mass[self.particles.slots(ids)].sum())
+        self.model.prefill(ids, t)
 
     def _accept(self, ids: np.ndarray, t: float, inlet: str) -> None:
         self._held_kg += float(self.particles.mass[self.particles.slots(ids)].sum())
-        if self._prefilling:
-            self.model.prefill(ids, t)
-        else:
-            self.model.receive(ids, t)
+        self.model.receive(ids, t)
 
     def step(self, t: float, dt: float) -> None:
         total = 0.0
