@@ -18,7 +18,6 @@ replicas has no noise floor and is left out (named in ``skipped``).
 from __future__ import annotations
 
 import json
-import re
 import shutil
 from pathlib import Path
 
@@ -27,9 +26,7 @@ import numpy as np
 from cosim.errors import ValidationError
 from surrogate.rom import doe
 from surrogate.rom.evaluate import DEM_REPLICAS, OUTFLOW_KEYS, replica_names
-
-REPLICA_NAME = re.compile(r"^(?P<scene>.+)_r(?P<replica>\d+)$")
-
+from surrogate.rom.paper_design import _OUTFLOW_KEYS as INFLOW_KEYS
 
 def is_heldout_data(data) -> bool:
     """Whether ``data`` is the exported data folder of a held-out design."""
@@ -43,23 +40,20 @@ def is_heldout_data(data) -> bool:
 
 
 def _scenes(records: list) -> dict:
-    """Finished replicas by scene, ordered by replica number."""
+    """Finished replicas by scene (the run's name without ``_r<replica>``), ordered
+    by replica number."""
     scenes = {}
-    for record in records:
-        match = REPLICA_NAME.match(record["name"])
-        if record.get("status") == "done" and match:
-            scenes.setdefault(match["scene"], []).append((int(match["replica"]), record))
-    return {scene: [r for _, r in sorted(rows, key=lambda row: row[0])]
-            for scene, rows in scenes.items()}
+    for record in sorted(records, key=lambda r: r["spec"]["replica"]):
+        if record.get("status") == "done":
+            scene = record["name"].removesuffix(f"_r{record['spec']['replica']}")
+            scenes.setdefault(scene, []).append(record)
+    return scenes
 
 
 def _emissions(result: dict, record: dict) -> dict:
-    spec = record["spec"]
-    return {"time": result["in_time"], "id": result["in_id"],
-            "tracking_id": result["in_tracking_id"], "mass": result["in_mass"],
-            "grade": result["in_grade"], "hardness": result["in_hardness"],
-            "discharge_rate": np.array(spec["discharge_rate"]),
-            "duration": np.array(spec["duration"])}
+    return {**{k: result[f"in_{k}"] for k in INFLOW_KEYS},
+            "discharge_rate": np.array(record["spec"]["discharge_rate"]),
+            "duration": np.array(record["spec"]["duration"])}
 
 
 def _dem_run(result: dict, record: dict, t0: float) -> dict:
