@@ -12,13 +12,24 @@ File ``STATE/ledger.sqlite``:
 * ``meta(key, value)``: ``ledger_id`` (a UUID made with the file; the client
   keeps it in its checkpoint and refuses a server with another ledger),
   ``schema`` (``SCHEMA_VERSION``) and ``state`` (``PlantProcess.state()`` as
-  JSON: clock, counters, belts, setpoints, CV301 contents);
+  JSON: clock, counters, the belts' motion and shift counts, setpoints; a few
+  hundred bytes whatever the belts hold);
 * ``inbound(sequence, tracking_id, mass_kg, grade, hardness, source, time_s)``:
   every discharged bin; the pending ones are those above the acknowledged
   sequence;
 * ``bins(tracking_id, entered_kg, source, left_kg, grade)``: per tracking id;
 * ``reports(sequence, digest, log)``: applied outflow reports (the digest
-  tells a resend from a conflicting replay).
+  tells a resend from a conflicting replay);
+* ``cv101_loads(shift, tracking_id, mass_kg, grade, hardness, source)``: the
+  bin put on CV101's loading slot after its shift number ``shift``;
+* ``cv301_loads(row, shift, tracking_id, mass_kg, grade)``: the outflow loaded
+  onto CV301 while its shift count was ``shift``, in the order reported.
+
+A save writes only what changed: new rows, and the small ``state``. The
+belts' rows are written once, when a bin is put on the belt, and deleted
+once it has left (it is then in ``inbound`` or delivered): before, the
+whole belts were encoded to JSON at every save (6 % of the server's
+py-spy samples at 1,000 bins/s with 2,000-bin belts).
 """
 
 from __future__ import annotations
@@ -32,7 +43,7 @@ from pathlib import Path
 from cosim.errors import ValidationError
 from opcua_server.process import InboundRecord, PlantProcess
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 SAVE_CLOCK_EVERY_S = 1.0
 """Wall seconds [s] between saves when only the clock moved (anything else
 is saved at once)."""
@@ -46,6 +57,11 @@ CREATE TABLE IF NOT EXISTS bins (tracking_id TEXT PRIMARY KEY, entered_kg REAL N
     source INTEGER NOT NULL, left_kg REAL NOT NULL DEFAULT 0, grade REAL NOT NULL DEFAULT 0);
 CREATE TABLE IF NOT EXISTS reports (sequence INTEGER PRIMARY KEY, digest TEXT NOT NULL,
     log TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS cv101_loads (shift INTEGER PRIMARY KEY, tracking_id TEXT NOT NULL,
+    mass_kg REAL NOT NULL, grade REAL NOT NULL, hardness REAL NOT NULL, source INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS cv301_loads (row INTEGER PRIMARY KEY, shift INTEGER NOT NULL,
+    tracking_id TEXT NOT NULL, mass_kg REAL NOT NULL, grade REAL NOT NULL);
+CREATE INDEX IF NOT EXISTS cv301_loads_shift ON cv301_loads (shift);
 """
 # tracking ids are uint64: stored as decimal text (SQLite integers are signed 64-bit)
 
@@ -93,7 +109,12 @@ class LedgerStore:
                 self.db.execute("SELECT * FROM bins")]
         reports = [(seq, digest, json.loads(log)) for seq, digest, log in
                    self.db.execute("SELECT * FROM reports")]
-        process.restore(state, inbound, bins, reports)
+        cv101 = [(shift, int(tid), m, g, h, src) for shift, tid, m, g, h, src in
+                 self.db.execute("SELECT * FROM cv101_loads")]
+        cv301 = [(shift, int(tid), m, g) for shift, tid, m, g in
+                 self.db.execute("SELECT shift, tracking_id, mass_kg, grade FROM cv301_loads "
+                                 "ORDER BY row")]
+        process.restore(state, inbound, bins, reports, cv101, cv301)
         self._saved_revision = process.revision
         return True
 
@@ -109,27 +130,52 @@ class LedgerStore:
                 or now - self._saved_at >= SAVE_CLOCK_EVERY_S):
             return
         journal, process.journal = process.journal, []
-        with self.db:  # one transaction
+        db = self.db
+        with db:  # one transaction
+            # consecutive entries of one kind in one executemany, in journal order
+            inbound, loads = [], []
             for entry in journal:
-                if entry[0] == "inbound":
-                    r = entry[1]
-                    self.db.execute("INSERT INTO inbound VALUES (?, ?, ?, ?, ?, ?, ?)",
-                                    (r.sequence, str(r.tracking_id), r.mass_kg, r.grade,
-                                     r.hardness, r.source, r.time_s))
-                    self.db.execute("INSERT OR REPLACE INTO bins (tracking_id, entered_kg, "
-                                    "source) VALUES (?, ?, ?)",
-                                    (str(r.tracking_id), r.mass_kg, r.source))
+                kind = entry[0]
+                if kind != "inbound" and inbound:
+                    self._insert_inbound(inbound)
+                    inbound = []
+                if kind != "cv101_load" and loads:
+                    db.executemany("INSERT INTO cv101_loads VALUES (?, ?, ?, ?, ?, ?)", loads)
+                    loads = []
+                if kind == "inbound":
+                    inbound.append(entry[1])
+                elif kind == "cv101_load":
+                    shift, tid, mass, grade, hardness, source = entry[1:]
+                    loads.append((shift, str(tid), mass, grade, hardness, source))
                 else:
-                    _, sequence, digest, log, rows = entry
-                    self.db.execute("INSERT INTO reports VALUES (?, ?, ?)",
-                                    (sequence, digest, json.dumps(log, allow_nan=False)))
-                    self.db.executemany("UPDATE bins SET left_kg = ?, grade = ? "
-                                        "WHERE tracking_id = ?",
-                                        [(left, grade, str(tid)) for tid, left, grade in rows])
-            self.db.execute("INSERT OR REPLACE INTO meta VALUES ('state', ?)",
-                            (json.dumps(process.state(), allow_nan=False),))
+                    _, sequence, digest, log, rows, shift, loaded = entry
+                    db.execute("INSERT INTO reports VALUES (?, ?, ?)",
+                               (sequence, digest, json.dumps(log, allow_nan=False)))
+                    db.executemany("UPDATE bins SET left_kg = ?, grade = ? WHERE tracking_id = ?",
+                                   [(left, grade, str(tid)) for tid, left, grade in rows])
+                    db.executemany("INSERT INTO cv301_loads (shift, tracking_id, mass_kg, grade) "
+                                   "VALUES (?, ?, ?, ?)",
+                                   [(shift, str(tid), m, g) for tid, m, g in loaded])
+            if inbound:
+                self._insert_inbound(inbound)
+            if loads:
+                db.executemany("INSERT INTO cv101_loads VALUES (?, ?, ?, ?, ?, ?)", loads)
+            # the bins that have left a belt: in ``inbound`` (CV101) or delivered (CV301)
+            for table, belt in (("cv101_loads", process.cv101), ("cv301_loads", process.cv301)):
+                db.execute(f"DELETE FROM {table} WHERE shift <= ?",
+                           (belt.shifts_done - belt.n_bins,))
+            db.execute("INSERT OR REPLACE INTO meta VALUES ('state', ?)",
+                       (json.dumps(process.state(), allow_nan=False),))
         self._saved_revision = process.revision
         self._saved_at = now
+
+    def _insert_inbound(self, records: list[InboundRecord]) -> None:
+        self.db.executemany("INSERT INTO inbound VALUES (?, ?, ?, ?, ?, ?, ?)",
+                            [(r.sequence, str(r.tracking_id), r.mass_kg, r.grade, r.hardness,
+                              r.source, r.time_s) for r in records])
+        self.db.executemany("INSERT OR REPLACE INTO bins (tracking_id, entered_kg, source) "
+                            "VALUES (?, ?, ?)",
+                            [(str(r.tracking_id), r.mass_kg, r.source) for r in records])
 
     def close(self) -> None:
         self.db.close()

@@ -104,22 +104,33 @@ class Belt:
         self.grade = np.zeros(self.n_bins)
         self.hardness = np.zeros(self.n_bins)
         self.source = np.full(self.n_bins, -1, dtype=np.int32)
+        self.shifts_done = 0
+        """Shifts since the plant started: a bin put on slot 0 after shift ``s``
+        is at slot ``shifts_done - s`` (how the ledger stores a belt's bins as
+        rows written once, not the whole belt at every save)."""
 
     def state(self) -> dict:
-        """The belt as plain JSON data (``restore`` takes it back)."""
+        """The belt's motion as plain JSON data; its bins are restored from rows
+        (``restore``)."""
         return {"offset_m": self.offset_m, "speed_m_s": self.speed_m_s,
-                "tracking_id": self.tracking_id.tolist(), "mass": self.mass.tolist(),
-                "grade": self.grade.tolist(), "hardness": self.hardness.tolist(),
-                "source": self.source.tolist()}
+                "n_bins": self.n_bins, "shifts_done": self.shifts_done}
 
-    def restore(self, state: dict) -> None:
-        if len(state["mass"]) != self.n_bins:
+    def restore(self, state: dict, loads=()) -> None:
+        """Back to ``state()``; ``loads``: ``(shift, tracking_id, mass, grade,
+        hardness, source)`` of the bins put on slot 0 after shift ``shift``
+        (those already past the end are ignored)."""
+        if int(state["n_bins"]) != self.n_bins:
             raise ValidationError("ledger", f"a belt of {self.n_bins} bins (the configuration's)",
-                                  f"the stored belt has {len(state['mass'])}")
+                                  f"the stored belt has {state['n_bins']}")
         self.offset_m, self.speed_m_s = float(state["offset_m"]), float(state["speed_m_s"])
-        self.tracking_id[:] = np.array(state["tracking_id"], dtype=np.uint64)
-        self.mass[:], self.grade[:] = state["mass"], state["grade"]
-        self.hardness[:], self.source[:] = state["hardness"], state["source"]
+        self.shifts_done = int(state["shifts_done"])
+        self.tracking_id[:], self.mass[:], self.grade[:], self.hardness[:] = 0, 0.0, 0.0, 0.0
+        self.source[:] = -1
+        for shift, tid, mass, grade, hardness, source in loads:
+            slot = self.shifts_done - int(shift)
+            if 0 <= slot < self.n_bins:
+                self.tracking_id[slot], self.mass[slot], self.grade[slot] = tid, mass, grade
+                self.hardness[slot], self.source[slot] = hardness, source
 
     def positions(self) -> np.ndarray:
         """Centre of each bin [m] from the loading point."""
@@ -141,6 +152,7 @@ class Belt:
                            (self.hardness, 0.0), (self.source, -1)):
             arr[1:] = arr[:-1].copy()
             arr[0] = empty
+        self.shifts_done += 1
         return head
 
 
@@ -194,8 +206,10 @@ class PlantProcess:
         self.delivered_by_source: dict[int, float] = {}
         self.outflow_log: list[dict] = []
         # what changed since the ledger store last saved (``opcua_server.ledger_store``):
-        # ("inbound", InboundRecord) and ("report", sequence, digest, log row, [(tid, left
-        # kg, grade)]); ``revision`` counts every change but the clock's
+        # ("inbound", InboundRecord), ("cv101_load", shift, tid, kg, grade, hardness,
+        # source) and ("report", sequence, digest, log row, [(tid, left kg, grade)],
+        # CV301 shift, [(tid, kg, grade)] loaded); ``revision`` counts every change but
+        # the clock's
         self.journal: list[tuple] = []
         self.revision = 0
         # (plant time [s], mass [kg]) discharged onto SP201 / loaded onto CV301 in the
@@ -220,6 +234,9 @@ class PlantProcess:
         belt.grade[0] = float(lot["grade"])
         belt.hardness[0] = float(lot["hardness"])
         belt.source[0] = int(lot["source"])
+        self.journal.append(("cv101_load", belt.shifts_done, self.next_tracking_id,
+                             float(belt.mass[0]), float(belt.grade[0]),
+                             float(belt.hardness[0]), int(belt.source[0])))
         self.next_tracking_id += 1
 
     def _initial_inventory(self) -> list[InboundRecord]:
@@ -416,9 +433,10 @@ class PlantProcess:
                                  "mass_kg": float(mass.sum()),
                                  "by_source": self._by_source(tids, mass)})
         self._cv301_flow.append((self.time, float(mass.sum())))
+        loaded = list(zip(tids.tolist(), mass.tolist(), grade.tolist()))
         self.journal.append(("report", sequence, digest, self.outflow_log[-1],
                              [(tid, self.left_mass[tid], self._grades[tid])
-                              for tid in tids.tolist()]))
+                              for tid in tids.tolist()], self.cv301.shifts_done, loaded))
         self.revision += 1
         return "applied"
 
@@ -477,8 +495,9 @@ class PlantProcess:
 
     # ----------------------------------------------------------- persistence
     def state(self) -> dict:
-        """Everything but the per-tracking-id and per-record tables, as JSON data
-        (the ledger store keeps those as rows, from ``journal``)."""
+        """Everything but the per-tracking-id and per-record tables and the bins
+        on the belts, as JSON data of a size that does not grow with the belts
+        (the ledger store keeps those as rows written once, from ``journal``)."""
         return {
             "time": self.time, "next_tracking_id": self.next_tracking_id,
             "last_sequence": self.last_sequence, "acknowledged_sequence": self.acknowledged_sequence,
@@ -487,16 +506,19 @@ class PlantProcess:
             "discharge_start": self._discharge_start,
             "setpoint_changes": [list(c) for c in self.setpoint_changes],
             "cv101": self.cv101.state(), "cv301": self.cv301.state(),
-            "cv301_contents": [list(c.items()) for c in self.cv301_contents],
             "bins_out": self.bins_out, "delivered_mass_kg": self.delivered_mass_kg,
             "delivered_by_source": list(self.delivered_by_source.items()),
         }
 
     def restore(self, state: dict, inbound: list[InboundRecord], bins: list[tuple],
-                reports: list[tuple]) -> None:
+                reports: list[tuple], cv101_loads=(), cv301_loads=()) -> None:
         """Back to a saved state: ``state()``'s dict, the inbound records not yet
         acknowledged, ``(tracking_id, entered kg, source, left kg, grade)`` per
-        bin and ``(sequence, digest, log row)`` per applied outflow report."""
+        bin, ``(sequence, digest, log row)`` per applied outflow report, the
+        bins loaded onto CV101 (``Belt.restore``'s rows) and the outflow loaded
+        onto CV301, ``(shift, tracking_id, kg, grade)`` in the order reported
+        (slot ``shifts_done - shift``: each slot's contents and grade as they
+        were, summed in the same order)."""
         self.time = float(state["time"])
         self.next_tracking_id = int(state["next_tracking_id"])
         self.last_sequence = int(state["last_sequence"])
@@ -506,9 +528,23 @@ class PlantProcess:
         self.discharge_rate_setpoint = float(state["discharge_rate_setpoint"])
         self._discharge_start = float(state["discharge_start"])
         self.setpoint_changes = [tuple(c) for c in state["setpoint_changes"]]
-        self.cv101.restore(state["cv101"])
+        self.cv101.restore(state["cv101"], cv101_loads)
         self.cv301.restore(state["cv301"])
-        self.cv301_contents = [{int(t): m for t, m in slot} for slot in state["cv301_contents"]]
+        belt = self.cv301
+        self.cv301_contents = [dict() for _ in range(belt.n_bins)]
+        slot_grades: list[dict[int, float]] = [dict() for _ in range(belt.n_bins)]
+        for shift, tid, mass, grade in cv301_loads:
+            slot = belt.shifts_done - int(shift)
+            if 0 <= slot < belt.n_bins:
+                contents = self.cv301_contents[slot]
+                contents[tid] = contents.get(tid, 0.0) + mass
+                slot_grades[slot][tid] = grade  # the latest report's, as when it moved on
+        for slot, contents in enumerate(self.cv301_contents):
+            mass = sum(contents.values())
+            belt.mass[slot] = mass
+            belt.tracking_id[slot] = next(iter(contents), 0)
+            belt.grade[slot] = (sum(m * slot_grades[slot][t] for t, m in contents.items())
+                                / mass if mass > 0 else 0.0)
         self.loading_contents = self.cv301_contents[0]
         self.bins_out = int(state["bins_out"])
         self.delivered_mass_kg = float(state["delivered_mass_kg"])
