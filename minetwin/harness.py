@@ -148,12 +148,15 @@ class StockpileProcess(ManagedProcess):
 
     ``model_options``: ``KEY=VALUE`` storage options, each passed as
     ``--model-option`` (e.g. ``["model=out/rom/model.npz"]`` for ``rom``).
+    ``source_names``: display name per source index, each passed as
+    ``--source-name`` (``opcua_server.config.source_names`` of the plant's feed).
     """
 
     def __init__(self, workdir: Path, state: dict, url: str, *, model: str = "fifo",
                  model_options: list[str] | None = None, lockstep: bool = False,
                  period: float = 1.0, duration: float | None = None, rest: bool = False,
-                 extra: list[str] | None = None, name: str = "stockpile"):
+                 extra: list[str] | None = None, name: str = "stockpile",
+                 source_names: dict | None = None):
         workdir = Path(workdir)
         self.summary = workdir / f"{name}.summary.json"
         self.checkpoint = workdir / f"{name}.checkpoint"
@@ -164,6 +167,8 @@ class StockpileProcess(ManagedProcess):
                               "--checkpoint", str(self.checkpoint), "--summary", str(self.summary)]
         for option in model_options or []:
             args += ["--model-option", option]
+        for index, source in (source_names or {}).items():
+            args += ["--source-name", f"{index}={source}"]
         args += ["--lockstep", "--period", str(period)] if lockstep else []
         args += ["--duration", str(duration)] if duration is not None else []
         if rest:

@@ -74,8 +74,27 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
         check_finite_range(f"{where}.grade", lot.get("grade", float("nan")), 0.0, 1.0)
         if int(lot.get("source", -1)) < 0:
             raise ValidationError(f"{where}.source", "an integer >= 0", f"got {lot.get('source')}")
+        if "name" in lot and not (isinstance(lot["name"], str) and lot["name"].strip()):
+            raise ValidationError(f"{where}.name", "a non-empty string", f"got {lot['name']!r}")
+    source_names(config)  # one name per source
     first = int(config["feed"].get("first_tracking_id", 1))
     if not 0 <= first < 2**63:
         raise ValidationError("feed.first_tracking_id", "in [0, 2**63)", f"got {first}")
     return config
 
+
+
+def source_names(config: dict) -> dict[int, str]:
+    """Display name of each source that a feed lot names (``feed.lots[k].name``),
+    e.g. ``{0: "left source"}``; a source whose lots name it twice differently
+    is a ``ValidationError``. The stockpile and the integration test's figures
+    show these names instead of the source's index."""
+    names: dict[int, str] = {}
+    for k, lot in enumerate(config["feed"].get("lots", [])):
+        if "name" not in lot:
+            continue
+        source, name = int(lot["source"]), str(lot["name"]).strip()
+        if names.setdefault(source, name) != name:
+            raise ValidationError(f"feed.lots[{k}].name", f"{names[source]!r} (the name an "
+                                  f"earlier lot gives source {source})", f"got {name!r}")
+    return names

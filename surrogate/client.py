@@ -89,6 +89,8 @@ class ClientOptions:
     insecure: bool = False
     model: str = "fifo"
     storage_options: dict = field(default_factory=dict)
+    source_names: dict = field(default_factory=dict)
+    """Display name per source index (``StockpileAsset``'s ``source_names``)."""
     seed: int = 0
     particle_mass_kg: float = 100.0
     dt_s: float = 0.5
@@ -136,7 +138,11 @@ class StockpileClient:
         self.state = self._restore() or ClientState(
             StockpileAsset(options.model, seed=options.seed,
                            particle_mass_kg=options.particle_mass_kg,
-                           storage_options=options.storage_options))
+                           storage_options=options.storage_options,
+                           source_names=options.source_names))
+        if options.source_names:  # the names given now, also over a checkpoint's
+            self.state.asset.source_names = {int(k): str(v)
+                                             for k, v in options.source_names.items()}
         self.inbox: dict[int, dict] = {}
         self.known_sequence = self.state.last_applied
         self.need_sync = True

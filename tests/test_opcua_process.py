@@ -9,7 +9,7 @@ import pytest
 from cosim.errors import ValidationError
 from opcua_server.audit import audit
 from opcua_protocol import load_nodemap
-from opcua_server.config import load_config
+from opcua_server.config import load_config, source_names
 from opcua_server.process import ExchangeRefused, PlantProcess
 from surrogate.stockpile import StockpileAsset
 
@@ -118,6 +118,22 @@ def test_config_errors_name_the_key(tmp_path):
     with pytest.raises(ValidationError, match=r"feed.lots\[0\].grade"):
         load_config(bad)
     assert "report_outflow" in load_nodemap()
+
+
+def test_the_feed_lots_name_their_sources():
+    # the paper's two sources, named by the default schedule's lots
+    assert source_names(load_config()) == {0: "left source", 1: "right source"}
+    lots = copy.deepcopy(load_config()["feed"]["lots"])
+    for lot in lots:
+        del lot["name"]
+    assert source_names(load_config(overrides={"feed": {"lots": lots}})) == {}
+    lots[2]["name"] = "north pit"  # source 0 again, by another name
+    lots[0]["name"] = "left source"
+    with pytest.raises(ValidationError, match=r"feed.lots\[2\].name.*'left source'"):
+        load_config(overrides={"feed": {"lots": lots}})
+    lots[2]["name"] = " "
+    with pytest.raises(ValidationError, match=r"feed.lots\[2\].name.*non-empty"):
+        load_config(overrides={"feed": {"lots": lots}})
 
 
 @pytest.mark.parametrize("model", ["fifo", "mixing"])

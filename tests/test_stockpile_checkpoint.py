@@ -16,6 +16,7 @@ import warnings
 import numpy as np
 import pytest
 
+from cosim.errors import ValidationError
 from minetwin.cli import main
 from surrogate.checkpoint import FORMAT, VERSION, CheckpointError, load_checkpoint, save_checkpoint
 from surrogate.client import ClientOptions, ClientState, StockpileClient
@@ -80,6 +81,24 @@ class _Payload:
 
 def _client(path):
     return StockpileClient(ClientOptions(server_url="opc.tcp://127.0.0.1:1/", checkpoint=path))
+
+
+def test_the_client_names_the_sources_it_is_given_also_over_a_checkpoint(tmp_path):
+    from minetwin.commands.stockpile import parse_source_names
+
+    names = parse_source_names(["0=left source", "1=right source"])
+    assert names == {0: "left source", 1: "right source"}
+    with pytest.raises(ValidationError, match="source_name"):
+        parse_source_names(["left=x"])
+    path = tmp_path / "stockpile.checkpoint"
+    client = _client(path)
+    client.state.asset.receive_bin(1, 500.0, 0.01, 1.0, source=0)
+    client.state.asset.receive_bin(2, 500.0, 0.01, 1.0, source=1)
+    assert client.state.asset.origin_names() == {0: "source 0", 1: "source 1"}
+    client._checkpoint()
+    resumed = StockpileClient(ClientOptions(server_url="opc.tcp://127.0.0.1:1/",
+                                            checkpoint=path, source_names=names))
+    assert resumed.state.asset.origin_names() == names
 
 
 def test_a_crafted_pickle_checkpoint_runs_no_code_and_the_error_names_the_file(tmp_path):

@@ -88,13 +88,12 @@ def run(args) -> int:
     storage_class(args.model, field="model")
     storage_options = parse_model_options(args.option, field="option")
     _check_storage(args.model, storage_options)
-    if args.config is not None:  # the server would refuse it after the other processes start
-        from opcua_server.config import load_config
+    from opcua_server.config import load_config, source_names
 
-        try:
-            load_config(args.config)
-        except ValidationError as exc:
-            raise ValidationError("--config", exc.allowed, exc.detail) from None
+    try:  # the server would refuse it after the other processes start
+        names = source_names(load_config(args.config))
+    except ValidationError as exc:
+        raise ValidationError("--config", exc.allowed, exc.detail) from None
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     # a previous run in DIR: its logs would be appended to and its state resumed
@@ -110,7 +109,8 @@ def run(args) -> int:
         processes.append(server)
         print(f"integration-test: server {server.url}", file=sys.stderr, flush=True)
         stockpile = StockpileProcess(out, state, server.url, model=args.model,
-                                     model_options=args.option, rest=True)
+                                     model_options=args.option, rest=True,
+                                     source_names=names)
         processes.append(stockpile)
         print(f"integration-test: stockpile REST {stockpile.rest_url}", file=sys.stderr, flush=True)
         if not args.no_monitor:
@@ -151,7 +151,7 @@ def run(args) -> int:
         "outflow_reports": ledger["outbound_sequence"],
         "duplicate_reports_ignored": ledger["duplicate_reports_ignored"],
         "refusals": ledger["refusals"], "monitor_ok": monitor_ok,
-        "plots": _plots(out, ledger, summary),
+        "plots": _plots(out, ledger, summary, names),
     })
     if not report["keeps_up"]:
         print(f"integration-test: the stockpile did not keep real time: it lagged up to "
@@ -202,7 +202,9 @@ def _warnings(log: Path) -> list[str]:
     return found
 
 
-def _plots(out: Path, ledger: dict, summary: dict) -> list[str]:
+def _plots(out: Path, ledger: dict, summary: dict, names: dict | None = None) -> list[str]:
+    """stockpile_mass_grade.png and cv301_composition.png; ``names``: display name
+    per source index (``opcua_server.config.source_names``), else "source N"."""
     import numpy as np
 
     from cosim import plotstyle
@@ -237,12 +239,17 @@ def _plots(out: Path, ledger: dict, summary: dict) -> list[str]:
     sources = sorted({*(str(s) for s in ledger.get("source_of", {}).values()),
                       *(s for row in log for s in row["by_source"])}, key=int)
     times = np.array([row["time_s"] for row in log])
+    names = {int(k): v for k, v in (names or {}).items()}
+
+    def named(source: str) -> str:
+        return names.get(int(source), "unknown source" if int(source) < 0 else f"source {source}")
+
     fig, ax = plt.subplots(figsize=(8, 4.5))
     if log:
         cumulative = np.array([[row["by_source"].get(s, 0.0) for s in sources] for row in log])
         cumulative = np.cumsum(cumulative, axis=0) / 1e3
         ax.stackplot(times, cumulative.T,
-                     labels=[f"source {s}: {cumulative[-1, j]:.1f} t" for j, s in
+                     labels=[f"{named(s)}: {cumulative[-1, j]:.1f} t" for j, s in
                              enumerate(sources)])
         plotstyle.legend(ax, loc="upper left")
     ax.set_xlim(0.0, max(float(ledger.get("time_s", 0.0)), 1.0))  # the whole run, not the outflow

@@ -53,6 +53,10 @@ def register(subparsers) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     parser.add_argument("--particle-mass", type=float, default=100.0,
                         help="pseudo-particle mass [kg] (default 100)")
+    parser.add_argument("--source-name", action="append", default=[], metavar="INDEX=NAME",
+                        help="display name of a source (the origin index of its ore), "
+                             "repeatable, e.g. '0=left source': the REST interface's "
+                             "origin_names, which the monitor shows (default: source INDEX)")
     parser.set_defaults(handler=run)
 
 
@@ -72,6 +76,7 @@ def run(args) -> int:
         if not 0 < value <= 3600:
             raise ValidationError(name, "in (0, 3600] s", f"got {value}")
     storage_options = parse_model_options(args.model_option)
+    source_names = parse_source_names(args.source_name)
     if args.password_file:
         if not args.password_file.is_file():
             raise ValidationError("password_file", "an existing file", f"{args.password_file}")
@@ -96,7 +101,8 @@ def run(args) -> int:
         client = StockpileClient(ClientOptions(
             server_url=args.server, username=args.user, password=password, certificate=cert,
             private_key=key, server_certificate=args.server_cert, insecure=args.insecure,
-            model=args.model, storage_options=storage_options, seed=args.seed,
+            model=args.model, storage_options=storage_options, source_names=source_names,
+            seed=args.seed,
             particle_mass_kg=args.particle_mass, dt_s=args.dt, slice_s=args.slice,
             cycle_budget_s=args.cycle_budget,
             cycle_s=args.cycle, lockstep=args.lockstep, period_s=args.period,
@@ -123,6 +129,20 @@ def parse_model_options(items: list[str], field: str = "model_option") -> dict:
             raise ValidationError(field, "KEY=VALUE", f"got {item!r}")
         options[key] = _number_or_text(value)
     return options
+
+
+def parse_source_names(items: list[str], field: str = "source_name") -> dict[int, str]:
+    """``INDEX=NAME`` strings -> ``{index: name}`` (index an integer >= 0, name not empty)."""
+    from cosim.errors import ValidationError
+
+    names = {}
+    for item in items:
+        index, sep, name = item.partition("=")
+        if not sep or not index.strip().isdigit() or not name.strip():
+            raise ValidationError(field, "INDEX=NAME with INDEX an integer >= 0 and a "
+                                  "non-empty NAME", f"got {item!r}")
+        names[int(index)] = name.strip()
+    return names
 
 
 def _number_or_text(text: str):
