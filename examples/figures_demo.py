@@ -42,7 +42,7 @@ def commands(out: Path) -> list[tuple[str, list[str], tuple[int, ...]]]:
         # the cone crusher's coarser product leaves the bands: exit 1 and overlays
         ("reference compare", ["reference", "compare", str(cosim_tests / "plant.toml"),
                                str(cosim_tests / "plant_reference.csv"),
-                               "--set", "crusher.fmu=cone_crusher",
+                               "--set", "assets.crusher.fmu=cone_crusher",
                                "--out", str(out / "reference_compare")], (1,)),
     ]
     return runs

@@ -153,6 +153,13 @@ def test_integration_figures_show_every_source(figures, tmp_path):
     texts = [t.get_text() for t in
              figures["cv301_composition.png"][2].axes[0].get_legend().get_texts()]
     assert texts == ["source 0: 2.5 t", "source 1: 0.0 t"]
+    # with the names the plant's feed lots give (opcua_server.config.source_names)
+    figures.clear()
+    _plots(tmp_path, ledger, {"history": rows, "model": "fifo"},
+           {0: "left source", 1: "right source"})
+    texts = [t.get_text() for t in
+             figures["cv301_composition.png"][2].axes[0].get_legend().get_texts()]
+    assert texts == ["left source: 2.5 t", "right source: 0.0 t"]
     assert figures["cv301_composition.png"][2].axes[0].get_xlim() == (0.0, 10.0)
 
 
@@ -192,6 +199,9 @@ def test_mwd_figures(figures, tmp_path):
     _check(figures, ["hardness_vs_mwd_tracking_error.png", "crusher_observed_torque_models.png",
                      "crusher_torque_to_hardness.png"],
            run=f"scenario {Path(SCENARIO).stem}, seed 7, storage model fifo")
+    # the torque legend sits below the axes, not over the first truck load
+    ax = figures["crusher_observed_torque_models.png"][2].axes[0]
+    assert ax.get_legend().get_window_extent().y1 < ax.get_window_extent().y0
 
 
 def test_sensitivity_figure(figures, tmp_path):
@@ -222,6 +232,11 @@ def test_feed_prediction_figures(figures, tmp_path):
         snap.attrs["time"] = 80.0
     plot(curves, {"rom": spatial, "fifo": ordered}, tmp_path, RUN)
     _check(figures, ["pile_distribution.png", "storage_evolution_and_outflow.png"])
+    # the shaded horizon of a model without geometry is explained in each panel's title
+    shaded = [ax for ax in figures["pile_distribution.png"][2].axes if ax.patches
+              and ax.get_xlabel() == "expected time to leave [s]"]
+    assert len(shaded) == 3
+    assert all("grey: the feed of the next 30 s" in ax.get_title() for ax in shaded)
 
 
 def test_dem_pile_pictures(figures, tmp_path):

@@ -268,7 +268,8 @@ def plot(curves: dict, snapshots: dict, out, run: str | None = None) -> list:
                 ax.set_ylabel(units[column])
                 title = column
             ax.set_xlabel("expected time to leave [s]")
-            ax.set_title(f"{name}: {title} at t = {snap.attrs['time']:.0f} s", fontsize=9)
+            ax.set_title(f"{name}: {title} at t = {snap.attrs['time']:.0f} s\n"
+                         f"(grey: the feed of the next {HORIZON_S:g} s)", fontsize=9)
             ax.grid(False)
     plotstyle.title(fig, "Pile distribution per storage model", run)
     fig.tight_layout()

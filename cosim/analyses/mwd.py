@@ -344,7 +344,8 @@ def plot(run, data: dict, summary: dict, out) -> list:
         ax.plot(times[shown], model[shown], lw=0.9, label=f"ansatz s = h^beta, beta = {b:g}")
     ax.set_xlabel("time [s]")
     ax.set_ylabel("crusher torque [N m]")
-    ax.legend(fontsize=8)
+    # below the axes: inside, it covers the first truck load's torque
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=4)
     plotstyle.title(fig, "Crusher torque: observed and the ansatz s = h^beta", label)
     fig.tight_layout()
     paths.append(plotstyle.save(fig, out / "crusher_observed_torque_models.png"))
