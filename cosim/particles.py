@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from typing import Iterator
 
+import numba
 import numpy as np
 
 from cosim.errors import ValidationError, check_finite_range
@@ -62,6 +63,22 @@ def _broadcast(field: str, value, shape: tuple[int, ...], dtype) -> np.ndarray:
     except ValueError:
         raise ValidationError(field, f"a scalar or an array of shape {shape}",
                               f"got shape {arr.shape}") from None
+
+
+@numba.njit(cache=True)
+def _lookup_slots(slot_of_id, ids, slots) -> bool:
+    """slots[i] = slot_of_id[ids[i]]; False at the first id outside the table or unmapped
+    (``ParticleStore.slots`` then says which)."""
+    size = np.uint64(slot_of_id.size)
+    for i in range(ids.size):
+        key = ids[i]
+        if key >= size:
+            return False
+        slot = slot_of_id[key]
+        if slot < 0:
+            return False
+        slots[i] = slot
+    return True
 
 
 class ParticleStore:
@@ -151,13 +168,10 @@ class ParticleStore:
     def slots(self, ids) -> np.ndarray:
         """Row indices of ``ids``; an unknown id is a ``ValidationError``."""
         ids = np.asarray(ids, dtype=np.uint64).ravel()
-        if ids.size == 0:
-            return np.empty(0, dtype=np.int64)
-        # called many times a step: one gather and one reduction when every id is known
-        if ids.max() < self._slot_of_id.size:
-            slots = self._slot_of_id[ids]
-            if slots.min() >= 0:
-                return slots
+        slots = np.empty(ids.size, dtype=np.int64)
+        # called many times a step: one compiled pass when every id is known
+        if _lookup_slots(self._slot_of_id, ids, slots):
+            return slots
         inside = ids < self._slot_of_id.size
         slots = np.full(ids.size, -1, dtype=np.int64)
         slots[inside] = self._slot_of_id[ids[inside].astype(np.int64)]
