@@ -59,6 +59,8 @@ A particle whose mass is all gone keeps its old ``f`` (its new mass is 0).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
@@ -139,15 +141,21 @@ def _exponential_kernel(x, hardness, rate, daughter_by_source, escape, dt, out, 
     decay = np.empty(nc)
     phi = np.empty(nc)
     broken_share = np.empty(nc)
+    factors_of = np.nan  # the hardness the factors were computed for (NaN: none yet)
     for p in range(n):
-        inv_h = 1.0 / hardness[p]
-        for j in range(nc):  # independent per class: vectorisable
-            breakage = rate[j] * inv_h
-            lam = breakage + escape[j]
-            z = lam * dt
-            decay[j] = np.exp(-z)
-            phi[j] = (1.0 - decay[j]) / z if z > 1e-8 else 1.0 - 0.5 * z
-            broken_share[j] = breakage / lam if lam > 0.0 else 0.0
+        # the factors depend on the particle only through its hardness, and particles
+        # come in runs of one ore's hardness: recompute them (16 exp) when it changes
+        if hardness[p] != factors_of:
+            factors_of = hardness[p]
+            inv_h = 1.0 / hardness[p]
+            for j in range(nc):  # independent per class: vectorisable
+                breakage = rate[j] * inv_h
+                lam = breakage + escape[j]
+                z = lam * dt
+                decay[j] = np.exp(-z)
+                phi[j] = (1.0 - decay[j]) / z if z > 1e-8 else 1.0 - 0.5 * z
+                broken_share[j] = breakage / lam if lam > 0.0 else 0.0
+        for j in range(nc):
             inflow[j] = 0.0
         for j in range(nc - 1, -1, -1):  # coarse to fine: inflow comes from coarser classes
             start = x[p, j]
@@ -213,25 +221,82 @@ def mill_step_mass(class_mass, hardness, breakage_rate, daughter_fraction, escap
     h = np.ascontiguousarray(np.broadcast_to(np.asarray(hardness, dtype=np.float64),
                                              (x.shape[0],)))
     check_finite_range("hardness", h, 0.0, low_open=True)
-    rate = np.ascontiguousarray(check_finite_range("breakage_rate", breakage_rate, 0.0, unit="1/s"))
-    escape = np.ascontiguousarray(check_finite_range("escape_rate", escape_rate, 0.0, unit="1/s"))
-    for field, arr in (("breakage_rate", rate), ("escape_rate", escape)):
-        if arr.shape != (N_CLASSES,):
-            raise ValidationError(field, f"an array of {N_CLASSES} rates", f"got shape {arr.shape}")
-    # transposed so that the kernels read the daughters of one source class contiguously
-    daughter_by_source = np.ascontiguousarray(
-        _check_operator("daughter_fraction", daughter_fraction, finer_only=True, active=rate > 0).T)
+    operators = mill_operators(breakage_rate, daughter_fraction, escape_rate)
     if int(substeps) < 1:
         raise ValidationError("substeps", ">= 1", f"got {substeps!r}")
+    return _advance(x, h, operators, dt, method, int(substeps))
+
+
+class MillOperators(NamedTuple):
+    """The mill FMU's operators, checked (``mill_operators``) and laid out for the kernels."""
+
+    breakage_rate: np.ndarray
+    """P^k for hardness 1 [1/s], (16,)."""
+    daughter_by_source: np.ndarray
+    """D transposed [-], (16, 16): row j holds the daughters of source class j."""
+    escape_rate: np.ndarray
+    """Q^k [1/s], (16,)."""
+
+
+def mill_operators(breakage_rate, daughter_fraction, escape_rate) -> MillOperators:
+    """Check the mill's operators (rates finite and >= 0; D's columns of breaking classes
+    fractions summing to 1, zero on and below the diagonal) and lay them out for the
+    kernels. Valid operators pass one compiled check; others get the checks that name
+    the field and the value (a ``ValidationError``)."""
+    rate = np.ascontiguousarray(breakage_rate, dtype=np.float64)
+    escape = np.ascontiguousarray(escape_rate, dtype=np.float64)
+    daughter = np.ascontiguousarray(daughter_fraction, dtype=np.float64)
+    if not (rate.shape == escape.shape == (N_CLASSES,)
+            and daughter.shape == (N_CLASSES, N_CLASSES)
+            and _operators_valid(rate, escape, daughter)):
+        rate = np.ascontiguousarray(check_finite_range("breakage_rate", breakage_rate, 0.0,
+                                                       unit="1/s"))
+        escape = np.ascontiguousarray(check_finite_range("escape_rate", escape_rate, 0.0,
+                                                         unit="1/s"))
+        for field, arr in (("breakage_rate", rate), ("escape_rate", escape)):
+            if arr.shape != (N_CLASSES,):
+                raise ValidationError(field, f"an array of {N_CLASSES} rates",
+                                      f"got shape {arr.shape}")
+        daughter = _check_operator("daughter_fraction", daughter_fraction, finer_only=True,
+                                   active=rate > 0)
+    # transposed so that the kernels read the daughters of one source class contiguously
+    return MillOperators(rate, np.ascontiguousarray(daughter.T), escape)
+
+
+@njit(cache=True)
+def _operators_valid(rate, escape, daughter) -> bool:
+    """True when ``mill_operators``' checks all pass (False: run them to say which fails)."""
+    n = rate.size
+    for k in range(n):
+        if not (0.0 <= rate[k] < np.inf and 0.0 <= escape[k] < np.inf):
+            return False
+    for j in range(n):
+        total = 0.0
+        for i in range(n):
+            d = daughter[i, j]
+            if not 0.0 <= d <= 1.0 + 1e-9:
+                return False
+            if rate[j] > 0.0:
+                total += d
+                if i >= j and d > 0.0:
+                    return False
+        if rate[j] > 0.0 and abs(total - 1.0) > 1e-9:
+            return False
+    return True
+
+
+def _advance(x, h, operators: MillOperators, dt: float, method: str, substeps: int):
+    """``mill_step_mass`` on checked arrays: x (N, 16) and h (N,) contiguous float64."""
+    rate, daughter_by_source, escape = operators
     if method == "auto":
-        method = integrator_for(float(dt) / int(substeps), h, rate, escape)
+        method = integrator_for(float(dt) / substeps, h, rate, escape)
     kernel = _exponential_kernel if method == "exponential" else _explicit_kernel
     step_escaped = np.empty_like(x)
     escaped = np.zeros_like(x)
     current = x
-    for _ in range(int(substeps)):
+    for _ in range(substeps):
         result = np.empty_like(x)
-        kernel(current, h, rate, daughter_by_source, escape, float(dt) / int(substeps), result,
+        kernel(current, h, rate, daughter_by_source, escape, float(dt) / substeps, result,
                step_escaped)
         escaped += step_escaped
         current = result
@@ -266,6 +331,24 @@ def mill_step(f, mass, hardness, breakage_rate, daughter_fraction, escape_rate, 
     check_finite_range("mass", mass, 0.0, unit="kg")
     new_mass_k, escaped_k = mill_step_mass(f * mass[:, None], hardness, breakage_rate,
                                            daughter_fraction, escape_rate, dt, method)
+    return _particles_after(f, new_mass_k, escaped_k)
+
+
+def mill_step_held(f, mass, hardness, operators: MillOperators, dt: float,
+                   method: str = "exponential"):
+    """``mill_step`` for particles of a ``ParticleStore`` (f (N, 16), mass and hardness
+    (N,) float64 arrays, valid since the store checked them and the mill only lowers
+    masses) with operators from ``mill_operators``: the same result without the
+    per-step checks of the arguments."""
+    x = f * mass[:, None]
+    h = np.ascontiguousarray(hardness)
+    new_mass_k, escaped_k = _advance(x, h, operators, dt, method, 1)
+    return _particles_after(f, new_mass_k, escaped_k)
+
+
+def _particles_after(f, new_mass_k, escaped_k):
+    """(new_f, new_mass, escaped_mass) of ``mill_step`` from the new and escaped class
+    masses; a particle with no mass left keeps its old f."""
     new_mass = new_mass_k.sum(axis=1)
     alive = new_mass > 0.0
     new_f = f.copy()

@@ -25,7 +25,8 @@ from __future__ import annotations
 import numpy as np
 
 from cosim.assets import EVENT_FIELDS, Asset, AssetSensors, Plant
-from cosim.comminution import METHODS, mill_step
+from cosim.comminution import METHODS, mill_operators, mill_step_held
+from cosim.errors import ValidationError
 from cosim.kinds import AssetKind
 from cosim.params import FmuAssetParameters, Position, Text, choice, number
 from cosim.master import CosimulationError
@@ -75,6 +76,9 @@ class Mill(Asset):
                  update_interval: float = 0.0, sensor_window: float = 30.0,
                  sensor_interval: float = 0.0):
         super().__init__(name, plant, location=location)
+        if method not in METHODS:
+            raise ValidationError(f"{name}.method", f"one of {list(METHODS)}",
+                                  f"got {method!r}")
         self.product_threshold = float(product_threshold)
         self.product_event_interval = float(product_event_interval)
         self.method = method
@@ -109,11 +113,14 @@ class Mill(Asset):
                 raise CosimulationError(f"{self.name}: no {missing} input; connect the mill "
                                         "FMU's outputs")
             slots = store.slots(self._ids)
-            new_f, new_mass, escaped = mill_step(
-                store.f[slots], store.mass[slots], store.hardness[slots],
-                np.asarray(self.inputs["breakage_rate"]),
-                np.asarray(self.inputs["daughter_fraction"]),
-                np.asarray(self.inputs["escape_rate"]), dt, method=self.method)
+            # the FMU's operators are checked (one compiled pass); the held particles'
+            # mass and hardness were checked when they entered the store
+            operators = mill_operators(self.inputs["breakage_rate"],
+                                       self.inputs["daughter_fraction"],
+                                       self.inputs["escape_rate"])
+            new_f, new_mass, escaped = mill_step_held(
+                store.f[slots], store.mass[slots], store.hardness[slots], operators, dt,
+                method=self.method)
             store.f[slots] = new_f
             store.mass[slots] = new_mass
             self._pending += escaped
