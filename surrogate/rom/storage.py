@@ -94,12 +94,13 @@ import warnings
 from collections import deque
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from cosim.errors import ValidationError, check_finite_range
 from cosim.storage import StorageModel, check_discharge_rate
 from surrogate.rom import doe
-from surrogate.rom.advect import advect, interpolate
+from surrogate.rom.advect import advect, write_positions
 from surrogate.rom.dispersion import disperse
 from surrogate.rom.grid import mass_field, mean_field
 from surrogate.rom.handover import drop_heights
@@ -123,6 +124,37 @@ FALLBACKS = (None, "dem")
 
 SURFACES = ("dem", "rule")
 """Accepted values of ``RomStorage(surface=...)``."""
+
+
+@numba.njit(cache=True)
+def _compact(keep, ids, mass, position):
+    """Move the rows ``keep`` retains to the front, in order; returns their count."""
+    kept = 0
+    for p in range(keep.size):
+        if keep[p]:
+            ids[kept] = ids[p]
+            mass[kept] = mass[p]
+            position[kept, 0] = position[p, 0]
+            position[kept, 1] = position[p, 1]
+            kept += 1
+    return kept
+
+
+@numba.njit(cache=True)
+def _renumbered(order, keep):
+    """A stacking order over the particles ``keep`` retains, in their new numbering."""
+    number = np.empty(keep.size, np.int64)
+    kept = 0
+    for p in range(keep.size):
+        number[p] = kept
+        kept += keep[p]
+    out = np.empty(kept, np.int64)
+    k = 0
+    for p in order:
+        if keep[p]:
+            out[k] = number[p]
+            k += 1
+    return out
 
 
 def _dem_config(config):
@@ -173,6 +205,7 @@ class RomStorage(StorageModel):
         self._ids = np.empty(0, dtype=np.uint64)
         self._mass = np.empty(0)
         self._pos = np.empty((0, 2))
+        self._order = np.empty(0, dtype=np.int64)  # the bulk's stacking order (settle's hint)
         self._receipts: deque[tuple[float, float]] = deque()
         self._field = None
         self._field_time = -np.inf
@@ -285,6 +318,8 @@ class RomStorage(StorageModel):
         return self._width
 
     def _append(self, ids, mass, position) -> None:
+        self._order = np.concatenate((self._order, np.arange(self._ids.size,
+                                                             self._ids.size + len(ids))))
         self._ids = np.concatenate((self._ids, ids))
         self._mass = np.concatenate((self._mass, mass))
         self._pos = np.concatenate((self._pos, position))
@@ -329,21 +364,27 @@ class RomStorage(StorageModel):
             self._field_time, self._field_rate = t, rate
         return self._field
 
+    def _keep(self, keep: np.ndarray) -> None:
+        """Keep the bulk particles where ``keep`` is true (in their order)."""
+        kept = _compact(keep, self._ids, self._mass, self._pos)
+        self._ids, self._mass, self._pos = self._ids[:kept], self._mass[:kept], self._pos[:kept]
+        self._order = _renumbered(self._order, keep)
+
     def _move(self, field, h: float, position: np.ndarray, mass: np.ndarray,
-              dispersion: bool = True) -> None:
+              dispersion: bool = True, hint=None) -> np.ndarray:
         """Advect ``position`` in place by ``field`` over ``h`` [s], let it disperse
         about the mean flow (``surrogate.rom.dispersion``, the model's measured
-        dispersivity; left out with ``dispersion=False``), then pack the bulk."""
+        dispersivity; left out with ``dispersion=False``), then pack the bulk.
+        Returns the stacking order (``settle``; ``hint``: the previous one)."""
         grid, c = self.model.grid, self.container
         # substeps keep each move below half a cell (CFL-like)
         substeps = max(1, int(np.ceil(h * np.abs(field).max() / (0.5 * min(grid.dx, grid.dy)))))
         advect(position, field, grid.x_min, grid.y_min, grid.dx, grid.dy, h, substeps,
                c.x_min, c.x_max, c.floor)
-        if dispersion and self.model.dispersivity > 0:
-            disperse(position, field, grid, self.model.dispersivity, h, self.rng)
-            np.clip(position[:, 0], c.x_min, c.x_max, out=position[:, 0])
-            np.maximum(position[:, 1], c.floor, out=position[:, 1])
-        settle(c, self._width, position, mass)
+        if dispersion:
+            disperse(position, field, grid, self.model.dispersivity, h, self.rng,
+                     c.x_min, c.x_max, c.floor)
+        return settle(c, self._width, position, mass, hint=hint)
 
     def _nearest_first(self, position, count_hint: int) -> np.ndarray:
         c = self.container
@@ -389,15 +430,15 @@ class RomStorage(StorageModel):
             if self._ids.size == 0:
                 self._credit_kg = 0.0
                 continue
-            self._move(self._refresh_field(t + k * h, rate), h, self._pos, self._mass)
+            self._order = self._move(self._refresh_field(t + k * h, rate), h, self._pos,
+                                     self._mass, hint=self._order)
             self._credit_kg += rate * h
             taken, self._credit_kg = self._take(self._pos, self._mass, self._credit_kg)
             if taken.size:
                 leaving.append(self._ids[taken])
                 keep = np.ones(self._ids.size, dtype=bool)
                 keep[taken] = False
-                self._ids, self._mass, self._pos = (self._ids[keep], self._mass[keep],
-                                                    self._pos[keep])
+                self._keep(keep)
         self._write_back()
         return np.concatenate(leaving) if leaving else np.empty(0, dtype=np.uint64)
 
@@ -405,12 +446,13 @@ class RomStorage(StorageModel):
         """Positions and velocities into the particle store (sensors, monitor): the
         field's velocity for the bulk, the DEM's for the surface layer."""
         slots = self.particles.slots(self._ids)
-        self.particles.position[slots, :2] = self._pos
-        self.particles.position[slots, 2] = 0.0
         if self._field is not None and self._ids.size:
             g = self.model.grid
-            self.particles.velocity[slots, :2] = interpolate(self._field, g.x_min, g.y_min,
-                                                             g.dx, g.dy, self._pos)
+            write_positions(self._field, g.x_min, g.y_min, g.dx, g.dy, self._pos, slots,
+                            self.particles.position, self.particles.velocity)
+        else:
+            self.particles.position[slots, :2] = self._pos
+            self.particles.position[slots, 2] = 0.0
         free = self.surface_dem
         if free is not None and len(free):
             slots = self.particles.slots(free.ids)
@@ -450,8 +492,7 @@ class RomStorage(StorageModel):
         self.dem_storage = DemStorage(dem=dem, rng=self.rng).bind(self.particles, self.owner)
         self.dem_storage.sync()
         self.fallen_back_at = float(t)
-        self._ids, self._mass, self._pos = (np.empty(0, dtype=np.uint64), np.empty(0),
-                                            np.empty((0, 2)))
+        self._keep(np.zeros(self._ids.size, dtype=bool))
         warnings.warn(f"ROM stockpile continues as DEM from t = {t:g} s "
                       f"({len(slots)} particles handed over)", OutOfTrainingRange, stacklevel=3)
 
@@ -466,8 +507,7 @@ class RomStorage(StorageModel):
         return bulk
 
     def _forget(self, ids) -> None:
-        keep = ~np.isin(self._ids, ids)
-        self._ids, self._mass, self._pos = self._ids[keep], self._mass[keep], self._pos[keep]
+        self._keep(~np.isin(self._ids, ids))
         if self.surface_dem is not None:
             self.surface_dem.remove(ids)
 
@@ -487,13 +527,14 @@ class RomStorage(StorageModel):
         horizon = float(check_finite_range("horizon", horizon, 0.0, unit="s"))
         position, mass, index = self._pos.copy(), self._mass.copy(), np.arange(self._ids.size)
         credit, taken_all, drained = self._credit_kg, [], self._drained.copy()
+        order = self._order
         substeps = max(1, int(np.ceil(horizon / self.max_step)))
         h = horizon / substeps
         field = self._field if self._field is not None else self.velocity_field(0.0, rate)
         for _ in range(substeps):
             if index.size == 0:
                 break
-            self._move(field, h, position, mass, dispersion=False)
+            order = self._move(field, h, position, mass, dispersion=False, hint=order)
             credit += rate * h
             taken, credit = self._take(position, mass, credit, drained)
             if taken.size:
@@ -501,6 +542,7 @@ class RomStorage(StorageModel):
                 keep = np.ones(index.size, dtype=bool)
                 keep[taken] = False
                 position, mass, index = position[keep], mass[keep], index[keep]
+                order = _renumbered(order, keep)
         order = np.concatenate(taken_all + [index[self._nearest_first(position, index.size)]])
         ids, masses = self._ids[order], self._mass[order]
         free = self.surface_dem

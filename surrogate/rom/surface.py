@@ -100,24 +100,55 @@ def deposit(container: Container, width: float, heights: np.ndarray, mass,
 
 
 @numba.njit(cache=True)
-def _settle(position, mass, x_min, width, columns, floor, areal_density, max_drop, sweeps):
+def _sort_into_columns(position, x_min, width, columns, hint, column, order, start):
+    """``order``: particle indices by column, then height (ties by index), and
+    ``start`` (columns + 1) each column's first entry; ``column`` per particle.
+
+    A counting sort by column in the order of ``hint`` (the previous step's
+    stacking order), then an insertion sort by height within each column: one
+    step of advection leaves a pile nearly in that order, so this is O(n)
+    where a full sort is O(n log n). The result does not depend on the hint.
+    """
     n = position.shape[0]
-    column = np.empty(n, np.int64)
-    key = np.empty(n)
-    count = np.zeros(columns, np.int64)
+    start[:] = 0
     for p in range(n):
         c = int((position[p, 0] - x_min) / width)
         c = min(max(c, 0), columns - 1)
         column[p] = c
-        count[c] += 1
-        key[p] = c * 1.0e6 + (position[p, 1] - floor)
-    order = np.argsort(key)
+        start[c + 1] += 1
+    for c in range(columns):
+        start[c + 1] += start[c]
+    fill = start[:columns].copy()
+    for k in range(n):
+        p = hint[k]
+        order[fill[column[p]]] = p
+        fill[column[p]] += 1
+    for c in range(columns):
+        for i in range(start[c] + 1, start[c + 1]):
+            p = order[i]
+            y = position[p, 1]
+            j = i - 1
+            while j >= start[c] and (position[order[j], 1] > y
+                                     or (position[order[j], 1] == y and order[j] > p)):
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = p
+
+
+@numba.njit(cache=True)
+def _settle(position, mass, x_min, width, columns, floor, areal_density, max_drop, sweeps, hint):
+    n = position.shape[0]
+    column = np.empty(n, np.int64)
+    sorted_ = np.empty(n, np.int64)
+    start = np.empty(columns + 1, np.int64)
+    _sort_into_columns(position, x_min, width, columns, hint, column, sorted_, start)
+    count = start[1:] - start[:-1]
     capacity = count.max() + sweeps + 1
     stack = np.empty((columns, capacity), np.int64)
     filled = np.zeros(columns, np.int64)
     height = np.full(columns, floor)
     for k in range(n):
-        p = order[k]
+        p = sorted_[k]
         c = column[p]
         stack[c, filled[c]] = p
         filled[c] += 1
@@ -152,17 +183,21 @@ def _settle(position, mass, x_min, width, columns, floor, areal_density, max_dro
         if not moved:
             break
     # density projection: each column is a packed stack in its particles' height order
+    k = 0
     for c in range(columns):
         top = floor
-        for k in range(filled[c]):
-            p = stack[c, k]
+        for i in range(filled[c]):
+            p = stack[c, i]
             rise = mass[p] / (areal_density * width)
             position[p, 1] = top + 0.5 * rise
             top += rise
+            sorted_[k] = p
+            k += 1
+    return sorted_
 
 
 def settle(container: Container, width: float, position: np.ndarray, mass,
-           sweeps: int = 20) -> None:
+           sweeps: int = 20, hint=None) -> np.ndarray:
     """Pack the bulk in place: angle-of-repose avalanching, then packed columns.
 
     The advected field is a regression, not divergence free, so advection
@@ -174,43 +209,59 @@ def settle(container: Container, width: float, position: np.ndarray, mass,
     ``sweeps`` times, the top particle of every column steeper than the angle
     of repose against a neighbour slides onto that neighbour (surface
     avalanches into the crater above the funnel).
+
+    Returns the stacking order (particle indices column by column, bottom to
+    top). Passed back as ``hint`` at the next call it makes the sort linear in
+    the number of particles (the result is the same with any hint).
     """
     if len(position) == 0:
-        return
+        return np.empty(0, np.int64)
     columns = max(int(round((container.x_max - container.x_min) / width)), 1)
     width = (container.x_max - container.x_min) / columns
-    _settle(position, np.ascontiguousarray(mass, dtype=np.float64), container.x_min, width,
-            columns, container.floor, container.areal_density,
-            np.tan(container.repose_angle) * width, int(sweeps))
+    hint = np.arange(len(position)) if hint is None else np.asarray(hint, dtype=np.int64)
+    if hint.size != len(position):
+        raise ValueError(f"hint: a permutation of the {len(position)} particles, "
+                         f"got {hint.size} entries")
+    return _settle(position, np.ascontiguousarray(mass, dtype=np.float64), container.x_min,
+                   width, columns, container.floor, container.areal_density,
+                   np.tan(container.repose_angle) * width, int(sweeps), hint)
 
 
 @numba.njit(cache=True)
 def _feeder_take(position, mass, lo, hi, top, x_min, width, drained, credit, out):
     columns = drained.size
     n = position.shape[0]
-    taken = np.zeros(n, np.bool_)
+    # the particles in the feeder's zone, found once (the rest cannot be taken)
+    zone = np.empty(n, np.int64)
+    zone_size = 0
+    for p in range(n):
+        x, y = position[p, 0], position[p, 1]
+        if lo <= x <= hi and y <= top:
+            zone[zone_size] = p
+            zone_size += 1
+    taken = np.zeros(zone_size, np.bool_)
     count = 0
     while True:
         # the lowest untaken particle of every column over the opening
         best = np.full(columns, -1, np.int64)
-        for p in range(n):
-            x, y = position[p, 0], position[p, 1]
-            if taken[p] or x < lo or x > hi or y > top:
+        for k in range(zone_size):
+            if taken[k]:
                 continue
-            c = min(max(int((x - x_min) / width), 0), columns - 1)
-            if best[c] < 0 or y < position[best[c], 1]:
-                best[c] = p
+            p = zone[k]
+            c = min(max(int((position[p, 0] - x_min) / width), 0), columns - 1)
+            if best[c] < 0 or position[p, 1] < position[zone[best[c]], 1]:
+                best[c] = k
         # the least-drained column gives its lowest particle
         pick = -1
         for c in range(columns):
             if best[c] >= 0 and (pick < 0 or drained[c] < drained[pick]):
                 pick = c
-        if pick < 0 or mass[best[pick]] > credit:
+        if pick < 0 or mass[zone[best[pick]]] > credit:
             return count, credit
-        p = best[pick]
+        p = zone[best[pick]]
         credit -= mass[p]
         drained[pick] += mass[p]
-        taken[p] = True
+        taken[best[pick]] = True
         out[count] = p
         count += 1
 
