@@ -21,7 +21,7 @@ import numpy as np
 
 
 @numba.njit(cache=True, inline="always")
-def _sample(field, x0, y0, dx, dy, x, y):
+def sample(field, x0, y0, dx, dy, x, y):
     ny, nx = field.shape[0], field.shape[1]
     fx = (x - x0) / dx - 0.5
     fy = (y - y0) / dy - 0.5
@@ -45,10 +45,24 @@ def interpolate(field, x0, y0, dx, dy, position):
     """Velocity [m/s] (N, 2) at ``position`` (N, 2) from a cell-centred field."""
     out = np.empty_like(position)
     for n in range(position.shape[0]):
-        u, v = _sample(field, x0, y0, dx, dy, position[n, 0], position[n, 1])
+        u, v = sample(field, x0, y0, dx, dy, position[n, 0], position[n, 1])
         out[n, 0] = u
         out[n, 1] = v
     return out
+
+
+@numba.njit(cache=True)
+def write_positions(field, x0, y0, dx, dy, position, slots, store_position, store_velocity):
+    """Rows ``slots`` of a particle store get ``position`` (N, 2) in the plane (z = 0)
+    and the field's velocity there (x and y) [m, m/s]."""
+    for n in range(position.shape[0]):
+        s = slots[n]
+        u, v = sample(field, x0, y0, dx, dy, position[n, 0], position[n, 1])
+        store_position[s, 0] = position[n, 0]
+        store_position[s, 1] = position[n, 1]
+        store_position[s, 2] = 0.0
+        store_velocity[s, 0] = u
+        store_velocity[s, 1] = v
 
 
 @numba.njit(cache=True)
@@ -59,8 +73,8 @@ def advect(position, field, x0, y0, dx, dy, dt, substeps, x_lo, x_hi, y_lo):
         x = position[n, 0]
         y = position[n, 1]
         for _ in range(substeps):
-            u, v = _sample(field, x0, y0, dx, dy, x, y)
-            um, vm = _sample(field, x0, y0, dx, dy, x + 0.5 * h * u, y + 0.5 * h * v)
+            u, v = sample(field, x0, y0, dx, dy, x, y)
+            um, vm = sample(field, x0, y0, dx, dy, x + 0.5 * h * u, y + 0.5 * h * v)
             x = min(max(x + h * um, x_lo), x_hi)
             y = max(y + h * vm, y_lo)
         position[n, 0] = x

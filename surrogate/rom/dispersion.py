@@ -31,9 +31,10 @@ fortieth of a particle diameter per metre travelled, on the quick design).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
-from surrogate.rom.advect import interpolate
+from surrogate.rom.advect import sample
 from surrogate.rom.grid import Grid
 
 MIN_PARTICLES = 6
@@ -86,11 +87,22 @@ def dispersivity(fits) -> float:
     return float(sums[0] / sums[1]) if sums[1] > 0 else 0.0
 
 
+@numba.njit(cache=True)
+def _disperse(position, field, x0, y0, dx, dy, alpha, seconds, normal, x_lo, x_hi, y_lo):
+    for n in range(position.shape[0]):
+        u, v = sample(field, x0, y0, dx, dy, position[n, 0], position[n, 1])
+        spread = np.sqrt(2.0 * alpha * np.hypot(u, v) * seconds)
+        position[n, 0] = min(max(position[n, 0] + spread * normal[n, 0], x_lo), x_hi)
+        position[n, 1] = max(position[n, 1] + spread * normal[n, 1], y_lo)
+
+
 def disperse(position: np.ndarray, field: np.ndarray, grid: Grid, alpha: float, seconds: float,
-             rng: np.random.Generator) -> None:
-    """Random-walk step of ``seconds`` [s] in place: D = alpha |v| at each particle."""
+             rng: np.random.Generator, x_lo: float = -np.inf, x_hi: float = np.inf,
+             y_lo: float = -np.inf) -> None:
+    """Random-walk step of ``seconds`` [s] in place: D = alpha |v| at each particle;
+    positions then kept in x in [x_lo, x_hi], y >= y_lo [m] (the container)."""
     if alpha <= 0 or position.shape[0] == 0:
         return
-    velocity = interpolate(field, grid.x_min, grid.y_min, grid.dx, grid.dy, position)
-    spread = np.sqrt(2.0 * alpha * np.hypot(velocity[:, 0], velocity[:, 1]) * seconds)
-    position += spread[:, None] * rng.standard_normal(position.shape)
+    normal = rng.standard_normal(position.shape)
+    _disperse(position, field, grid.x_min, grid.y_min, grid.dx, grid.dy, float(alpha),
+              float(seconds), normal, float(x_lo), float(x_hi), float(y_lo))

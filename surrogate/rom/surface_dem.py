@@ -252,6 +252,14 @@ def _advance(n_steps, dt, pos, vel, omega, radius, body_mass, inv_inertia, activ
         step += 1
 
 
+def _median_diameter(config, mass: np.ndarray) -> float:
+    """The median of ``config.diameter_of_mass(mass)`` [m], converting only the middle
+    masses: the diameter grows with the mass, so it has the same order."""
+    n = mass.size
+    middle = [(n - 1) // 2, n // 2]
+    return float(np.median(config.diameter_of_mass(np.partition(mass, middle)[middle])))
+
+
 class SurfaceDem:
     """Free particles between the inlet and the bulk (see the module docstring)."""
 
@@ -321,7 +329,7 @@ class SurfaceDem:
         heights = surface_heights(c, column_width, bulk_pos, bulk_mass)
         if bulk_pos.shape[0] == 0:
             return np.empty((0, 2)), np.empty(0)
-        radius = 0.5 * float(np.median(self.config.diameter_of_mass(bulk_mass)))
+        radius = 0.5 * _median_diameter(self.config, bulk_mass)
         centres = c.x_min + (np.arange(heights.size) + 0.5) * (c.x_max - c.x_min) / heights.size
         x = np.concatenate(([c.x_min], centres, [c.x_max]))
         y = np.concatenate((heights[:1], heights, heights[-1:]))
