@@ -31,6 +31,7 @@ import numpy as np
 from cosim.errors import ValidationError
 from cosim.events import PARTICLE_FIELDS
 from cosim.master import Component
+from cosim.particles import CORE_FIELDS
 from cosim.sizes import N_CLASSES, mean_diameter
 from cosim.stockpile_view import SOURCE_ATTRIBUTE
 
@@ -74,8 +75,7 @@ class Plant:
         self.particles_created = 0
         self._removed: list[np.ndarray] = []
         self._event_meta: list[tuple] = []
-        self._event_batches: list[dict] = []
-        self._buffered_rows = 0
+        self._event_rows = _EventRows(EVENT_BUFFER_ROWS)
 
     def register(self, name: str) -> int:
         """A new owner index for the particle holder called ``name``."""
@@ -87,34 +87,45 @@ class Plant:
     def record(self, type: str, asset: str, t: float, slots, location) -> None:
         """Record a macro-tracking event about ``slots`` (skipped when empty).
 
-        The particles' state is captured now; events are buffered and written
-        to the event store in batches (``flush_events``).
+        The particles' state is captured now, into the plant's preallocated event
+        rows (one compiled gather); events are written to the event store in
+        batches (``flush_events``).
         """
-        if self.events is not None and len(slots):
-            self.record_batch(type, asset, t,
-                              self.particles.gather(slots, fields=EVENT_FIELDS), location)
+        if self.events is None or not len(slots):
+            return
+        slots = np.asarray(slots, dtype=np.int64)
+        start = self._reserve_event_rows(type, asset, t, location, slots.size)
+        self._event_rows.gather(self.particles, slots, start)
 
     def record_batch(self, type: str, asset: str, t: float, batch: dict, location) -> None:
-        """Record an event about a gathered particle batch (skipped when empty)."""
+        """Record an event about a gathered particle batch (``EVENT_FIELDS``; skipped when
+        empty)."""
         if self.events is None or not len(batch["id"]):
             return
-        self._event_meta.append((type, asset, float(t), tuple(location), len(batch["id"])))
-        self._event_batches.append(batch)
-        self._buffered_rows += len(batch["id"])
-        if self._buffered_rows >= EVENT_BUFFER_ROWS:
+        start = self._reserve_event_rows(type, asset, t, location, len(batch["id"]))
+        self._event_rows.put(batch, start)
+
+    def _reserve_event_rows(self, type: str, asset: str, t: float, location,
+                            count: int) -> int:
+        """Buffer the event's own columns; the first of its ``count`` particle rows."""
+        rows = self._event_rows
+        if rows.used + count > rows.capacity:
             self.flush_events()
+            rows.reserve(count)
+        self._event_meta.append((type, asset, float(t), tuple(location), count))
+        start = rows.used
+        rows.used += count
+        return start
 
     def flush_events(self) -> None:
         """Hand the buffered events to the event store in one call."""
         if self.events is None or not self._event_meta:
             return
         types, assets, times, locations, counts = zip(*self._event_meta)
-        batch = {name: np.concatenate([b[name] for b in self._event_batches])
-                 for name in EVENT_FIELDS}
-        self.events.record_many(types, assets, times, locations, counts, batch)
+        self.events.record_many(types, assets, times, locations, counts,
+                                self._event_rows.filled())
         self._event_meta.clear()
-        self._event_batches.clear()
-        self._buffered_rows = 0
+        self._event_rows.used = 0
 
     def note_removed(self, ids: np.ndarray) -> None:
         """Remember ids of particles that left the plant (for id accounting)."""
@@ -125,6 +136,66 @@ class Plant:
     def removed_ids(self) -> np.ndarray:
         return (np.concatenate(self._removed) if self._removed
                 else np.empty(0, dtype=np.uint64))
+
+
+class _EventRows:
+    """Particle rows of the buffered events: one preallocated column per ``EVENT_FIELDS``
+    (``used`` rows filled), so recording an event copies its particles once, in one
+    compiled pass, with no per-event arrays to concatenate at the flush."""
+
+    def __init__(self, capacity: int):
+        self.capacity = 0
+        self.used = 0
+        self.columns: dict[str, np.ndarray] = {}
+        self.reserve(capacity)
+
+    def reserve(self, capacity: int) -> None:
+        """At least ``capacity`` rows (the filled ones kept)."""
+        if capacity <= self.capacity:
+            return
+        grown = {}
+        for name in EVENT_FIELDS:
+            dtype, shape = CORE_FIELDS[name]
+            grown[name] = np.empty((capacity, *shape), dtype=dtype)
+            if self.used:
+                grown[name][:self.used] = self.columns[name][:self.used]
+        self.columns, self.capacity = grown, capacity
+
+    def gather(self, particles, slots: np.ndarray, start: int) -> None:
+        """Rows ``start:start + len(slots)`` := the particles in ``slots``."""
+        c = self.columns
+        _gather_event_rows(slots, start, particles.id, particles.mass, particles.position,
+                           particles.grade, particles.hardness, particles.origin_block,
+                           particles.f, c["id"], c["mass"], c["position"], c["grade"],
+                           c["hardness"], c["origin_block"], c["f"])
+
+    def put(self, batch: dict, start: int) -> None:
+        """Rows from ``start`` := a gathered batch."""
+        stop = start + len(batch["id"])
+        for name, column in self.columns.items():
+            column[start:stop] = batch[name]
+
+    def filled(self) -> dict[str, np.ndarray]:
+        """The filled rows as a batch (views)."""
+        return {name: column[:self.used] for name, column in self.columns.items()}
+
+
+@numba.njit(cache=True)
+def _gather_event_rows(slots, start, ids, mass, position, grade, hardness, origin_block, f,
+                       out_ids, out_mass, out_position, out_grade, out_hardness,
+                       out_origin_block, out_f):
+    """Copy the ``EVENT_FIELDS`` of the particles in ``slots`` to rows ``start``, ... ."""
+    for i in range(slots.size):
+        slot, row = slots[i], start + i
+        out_ids[row] = ids[slot]
+        out_mass[row] = mass[slot]
+        out_grade[row] = grade[slot]
+        out_hardness[row] = hardness[slot]
+        out_origin_block[row] = origin_block[slot]
+        for k in range(position.shape[1]):
+            out_position[row, k] = position[slot, k]
+        for k in range(f.shape[1]):
+            out_f[row, k] = f[slot, k]
 
 
 class Asset(Component):
