@@ -34,6 +34,7 @@ py-spy samples at 1,000 bins/s with 2,000-bin belts).
 
 from __future__ import annotations
 
+import asyncio
 import json
 import sqlite3
 import time
@@ -74,7 +75,8 @@ class LedgerStore:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
             # the default isolation level: ``with self.db`` is one transaction, one fsync
-            self.db = sqlite3.connect(self.path, timeout=10.0)
+            # used by one thread at a time: ``save_async`` writes from a worker thread
+            self.db = sqlite3.connect(self.path, timeout=10.0, check_same_thread=False)
             self.db.execute("PRAGMA journal_mode=WAL")
             self.db.execute("PRAGMA synchronous=FULL")
             self.db.executescript(_TABLES)
@@ -95,6 +97,7 @@ class LedgerStore:
                                      ("schema", str(SCHEMA_VERSION))])
         self._saved_revision = None
         self._saved_at = -float("inf")
+        self._writing = asyncio.Lock()
 
     def load(self, process: PlantProcess) -> bool:
         """Restore ``process`` from the file; False if the file had no state yet."""
@@ -125,11 +128,37 @@ class LedgerStore:
         (restarting from a slightly earlier time is consistent: belts and
         counters are those of that time), unless ``force``.
         """
+        batch = self._take(process, force)
+        if batch is not None:
+            self._write(*batch)
+
+    async def save_async(self, process: PlantProcess, force: bool = False) -> None:
+        """``save``, with the commit (its fsync: 5 ms at the median on this
+        machine, 16 ms at p99, some 40 a second at 1,000 bins/s) in a worker
+        thread, so the server's event loop serves other requests meanwhile. What
+        changed is taken at once, in the caller's thread; saves are written in
+        the order they were taken. The caller makes nothing visible before this
+        returns."""
+        async with self._writing:  # FIFO: the batches reach the file in order
+            batch = self._take(process, force)
+            if batch is not None:
+                await asyncio.to_thread(self._write, *batch)
+
+    def _take(self, process: PlantProcess, force: bool) -> tuple | None:
+        """What a save writes, taken from ``process`` now: (journal, state JSON,
+        the first shift still on each belt); None if nothing is due."""
         now = time.monotonic()
         if not (force or process.journal or process.revision != self._saved_revision
                 or now - self._saved_at >= SAVE_CLOCK_EVERY_S):
-            return
+            return None
         journal, process.journal = process.journal, []
+        self._saved_revision = process.revision
+        self._saved_at = now
+        state = json.dumps(process.state(), allow_nan=False)
+        on_belts = tuple(belt.shifts_done - belt.n_bins for belt in (process.cv101, process.cv301))
+        return journal, state, on_belts
+
+    def _write(self, journal: list, state: str, on_belts: tuple) -> None:
         db = self.db
         with db:  # one transaction
             # consecutive entries of one kind in one executemany, in journal order
@@ -161,13 +190,9 @@ class LedgerStore:
             if loads:
                 db.executemany("INSERT INTO cv101_loads VALUES (?, ?, ?, ?, ?, ?)", loads)
             # the bins that have left a belt: in ``inbound`` (CV101) or delivered (CV301)
-            for table, belt in (("cv101_loads", process.cv101), ("cv301_loads", process.cv301)):
-                db.execute(f"DELETE FROM {table} WHERE shift <= ?",
-                           (belt.shifts_done - belt.n_bins,))
-            db.execute("INSERT OR REPLACE INTO meta VALUES ('state', ?)",
-                       (json.dumps(process.state(), allow_nan=False),))
-        self._saved_revision = process.revision
-        self._saved_at = now
+            for table, gone in zip(("cv101_loads", "cv301_loads"), on_belts):
+                db.execute(f"DELETE FROM {table} WHERE shift <= ?", (gone,))
+            db.execute("INSERT OR REPLACE INTO meta VALUES ('state', ?)", (state,))
 
     def _insert_inbound(self, records: list[InboundRecord]) -> None:
         self.db.executemany("INSERT INTO inbound VALUES (?, ?, ?, ?, ?, ?, ?)",

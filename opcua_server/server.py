@@ -205,8 +205,9 @@ class PlantAttributeService(AttributeService):
                     got = variant.VariantType.name if variant is not None else "no value"
                     raise ExchangeRefused("BadTypeMismatch", item.NodeId.Identifier,
                                           f"a scalar {target.variant.name}", f"got {got}")
-                target.apply(value)
-                self.plant.store.save(self.plant.process)
+                async with self.plant._lock:  # no exchange call runs between the two
+                    target.apply(value)
+                    await self.plant.store.save_async(self.plant.process)
             except ExchangeRefused as exc:
                 await self.plant.refuse(exc.status, exc.message)
                 results.append(ua.StatusCode(getattr(ua.StatusCodes, exc.status)))
@@ -739,7 +740,7 @@ class PlantServer:
             dt = min(dt, max(self.until_s - self.process.time, 0.0))
         async with self._lock:
             records = self.process.advance(dt)
-            self.store.save(self.process)  # durable before anyone sees it
+            await self.store.save_async(self.process)  # durable before anyone sees it
             await self.publish()
         if self.until_s is not None and not self.paused and \
                 self.process.time >= self.until_s - 1e-9:
@@ -797,7 +798,7 @@ class PlantServer:
         self.paused = True
 
     async def shutdown(self) -> None:
-        self.store.save(self.process, force=True)
+        await self.store.save_async(self.process, force=True)
         self.store.close()
         await self.server.stop()
 
@@ -861,7 +862,7 @@ class PlantServer:
     async def _acknowledge(self, sequence: int):
         async with self._lock:
             acked = self.process.acknowledge(sequence)
-            self.store.save(self.process)
+            await self.store.save_async(self.process)
             await self._publish_inbound()
         return f"acknowledged up to {acked}", ua.VariantType.String
 
@@ -873,7 +874,7 @@ class PlantServer:
             message = self.process.report_outflow(sequence, np.array(tracking_ids, dtype=np.uint64),
                                                   np.array(masses, dtype=float),
                                                   np.array(grades, dtype=float))
-            self.store.save(self.process)
+            await self.store.save_async(self.process)
             await self.publish()
         return message, ua.VariantType.String
 
