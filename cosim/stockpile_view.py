@@ -204,8 +204,9 @@ def origin_names(storage, names: dict | None = None) -> dict[int, str]:
 def predicted_feed(storage, horizon_s: float, discharge_rate: float) -> dict:
     """The feed the storage model predicts for the next ``horizon_s`` [s] at
     ``discharge_rate`` [kg/s]: mass [kg], mass-weighted grade, hardness and
-    D80 [m] (NaN when nothing is expected), particle count and the tracking
-    ids expected."""
+    D80 [m] (NaN when nothing is expected), particle count, the tracking
+    ids expected and the mass [kg] per origin (``mass_by_origin``, source
+    index -> kg, see ``origins``)."""
     horizon_s = float(check_finite_range("horizon_s", horizon_s, 0.0, unit="s"))
     ids, share = storage.predict(horizon_s, discharge_rate)
     store = storage.particles
@@ -214,6 +215,9 @@ def predicted_feed(storage, horizon_s: float, discharge_rate: float) -> dict:
     grade = _weighted_mean(share, store.grade[slots])
     hardness = _weighted_mean(share, store.hardness[slots])
     d80 = float(d_passing(_weighted_mean(share, store.f[slots]), 0.8)) if mass > 0 else np.nan
+    sources, which = np.unique(origins(store, slots), return_inverse=True)
+    by_origin = np.bincount(which.ravel(), weights=share, minlength=sources.size)
     return {"horizon_s": horizon_s, "mass_kg": mass, "grade": grade, "hardness": hardness,
             "d80_m": d80, "particle_count": int(ids.size),
-            "tracking_ids": np.unique(_tracking(store, slots))}
+            "tracking_ids": np.unique(_tracking(store, slots)),
+            "mass_by_origin": {int(k): float(m) for k, m in zip(sources, by_origin)}}

@@ -127,12 +127,17 @@ def main(argv=None) -> int:
                                   r"http://127\.0\.0\.1:\d+/", "stderr")
         processes.append(monitor)
         print(f"stockpile {url}, monitor {page_url}; running {args.seconds:g} s", file=sys.stderr)
-        time.sleep(args.seconds)
         with sync_playwright() as playwright:
             browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+            # every page opens now and follows the run, so that all are ready at once
+            # (on a loaded machine a page opened late could miss the end of a short run)
             page = browser.new_page(viewport={"width": 1600, "height": 1000})
             page.goto(page_url)
-            page.wait_for_function("window.monitorState.updates >= 2", timeout=20_000)
+            screens = {name: browser.new_page(**options) for name, options in SCREENS.items()}
+            for small in screens.values():
+                small.goto(page_url)
+            time.sleep(args.seconds)
+            page.wait_for_function("window.monitorState.updates >= 2", timeout=60_000)
             page.screenshot(path=str(args.out / "monitor.png"), full_page=True)
             page.select_option("#colour-by", "origin")
             page.screenshot(path=str(args.out / "monitor_origin.png"), full_page=True)
@@ -146,10 +151,8 @@ def main(argv=None) -> int:
             page.screenshot(path=str(args.out / "monitor_zoomed.png"), full_page=True)
             shown = page.evaluate("[document.getElementById('held-mass').textContent, "
                                   "document.getElementById('grade').textContent]")
-            for name, options in SCREENS.items():
-                small = browser.new_page(**options)
-                small.goto(page_url)
-                small.wait_for_function("window.monitorState.updates >= 2", timeout=20_000)
+            for name, small in screens.items():
+                small.wait_for_function("window.monitorState.updates >= 2", timeout=60_000)
                 small.screenshot(path=str(args.out / f"monitor_{name}.png"), full_page=True)
                 small.close()
             browser.close()

@@ -5,8 +5,10 @@ Sources: ANSI/ISA-18.2-2016 "Management of Alarm Systems for the Process
 Industries", its alarm state diagram (normal; active and unacknowledged;
 active and acknowledged; returned to normal and unacknowledged) and its
 clause 10.5.5.2 (the control system provides a dead band); EEMUA 191 for
-the default dead bands (level 2 %, composition 1 % of the range, as tabulated
-in exida's "Why should I use an alarm deadband?").
+the level's default dead band (2 % of capacity, as tabulated in exida's
+"Why should I use an alarm deadband?"). The grade's default, 0.05
+percentage points, is 5 % of a copper ore's 0.5-1.5 % band (EEMUA's
+composition value is 1 % of the range).
 
 The monitor server, not the page, keeps the alarms (``AlarmBook``), so they
 are the same in every browser and survive a page reload. It reads every
@@ -24,7 +26,7 @@ unit, in percentage points):
 - fill level: held mass / capacity [% of capacity]; dead band
   ``alarms.level_deadband_pct`` [% of capacity], default 2;
 - grade: the pile's mass-weighted grade [%]; dead band
-  ``alarms.grade_deadband_pct`` [percentage points], default 1; no value
+  ``alarms.grade_deadband_pct`` [percentage points], default 0.05; no value
   (and no change of the grade alarms) while the pile is empty.
 
 An occurrence of an alarm moves through these states:

@@ -318,9 +318,13 @@ def create_app(asset, lock=None) -> web.Application:
 def _feed_with_profile(asset, horizon: float) -> tuple[dict, dict]:
     """The asset's predicted feed for ``horizon`` [s], and per interval of
     horizon / FEED_PROFILE_INTERVALS the mass [kg], grade and hardness
-    predicted to leave in it (differences of the cumulative predictions)."""
+    predicted to leave in it, and its mass [kg] from each origin
+    (``origins``: the source indices; ``origin_mass_kg``: one row per origin),
+    all differences of the cumulative predictions."""
     ends = np.linspace(0.0, horizon, FEED_PROFILE_INTERVALS + 1)[1:]
     cumulative = [asset.predicted_feed(float(h)) for h in ends]
+    by_origin = [feed.pop("mass_by_origin") for feed in cumulative]
+    sources = sorted(set().union(*by_origin))
     mass = np.array([feed["mass_kg"] for feed in cumulative])
     interval_mass = np.diff(mass, prepend=0.0)
     profile = {"t_s": ends, "mass_kg": interval_mass}
@@ -331,6 +335,9 @@ def _feed_with_profile(asset, horizon: float) -> tuple[dict, dict]:
             profile[name] = np.where(interval_mass > 1e-9 * max(mass[-1], 1.0),
                                      np.diff(weighted, prepend=0.0) / interval_mass, np.nan)
     profile["grade"] = np.clip(profile["grade"], 0.0, 1.0)
+    profile["origins"] = sources
+    profile["origin_mass_kg"] = [np.diff([masses.get(k, 0.0) for masses in by_origin],
+                                         prepend=0.0) for k in sources]
     return cumulative[-1], profile
 
 
@@ -652,7 +659,10 @@ OPENAPI = {
                            "tracking_ids": _INT_LIST,
                            "profile": {"type": "object", "properties": {
                                "t_s": _NUM_LIST, "mass_kg": _NUM_LIST, "grade": _NUM_LIST,
-                               "hardness": _NUM_LIST}}}},
+                               "hardness": _NUM_LIST,
+                               "origins": {"type": "array", "items": {"type": "integer"},
+                                           "description": "source indices (-1: unknown)"},
+                               "origin_mass_kg": {"type": "array", "items": _NUM_LIST}}}}},
             [_param("horizon", {"type": "number", "exclusiveMinimum": True, "minimum": 0,
                                 "maximum": MAX_HORIZON_S},
                     "prediction horizon [s] (default 30)")]),

@@ -172,7 +172,7 @@ def test_monitor_page_against_a_running_stockpile(processes, tmp_path):
             # switching the colouring redraws the pile with the new attribute
             pile = page.locator("#pile")
             before = page.evaluate("document.getElementById('pile').toDataURL()")
-            for attribute, label in (("hardness", "hardness [-]"),
+            for attribute, label in (("hardness", "hardness (relative) [-]"),
                                      ("residence_time", "residence time [s]"),
                                      ("origin", "origin")):
                 page.select_option("#colour-by", attribute)
@@ -435,6 +435,23 @@ def test_monitor_operator_screen(driven_stockpile, tmp_path):
             assert sum(e["mass_kg"] for e in out) == pytest.approx(2_000.0)
             assert page.locator("#event-list tr[data-kind='in'] td:nth-child(7)").all_text_contents() \
                 == ["south pit", "north pit"]
+
+            # grade alarms off (0-100 %): said so, and no limit lines on the grade trend
+            assert page.locator("#grade-band").text_content() == "grade alarms off"
+            assert page.evaluate("window.monitorState.charts.grade.series.map((s) => s.label)") \
+                == ["t [s]", "grade [%]"]
+
+            # coloured by origin, the feed bars are stacked by the sources the REST predicts
+            feed = page.locator("#feed-chart")
+            sync_api.expect(feed).to_have_attribute("data-coloured-by", "grade")
+            page.select_option("#colour-by", "origin")
+            _, predicted = get(stockpile_url + "/feed?horizon=30")
+            assert predicted["profile"]["origins"] == [0, 1]  # the rest of lot 11, then lot 12
+            sync_api.expect(feed).to_have_attribute("data-coloured-by", "origin")
+            assert feed.get_attribute("data-origins") == "0,1"
+            sync_api.expect(page.locator("#feed-caption")).to_contain_text(
+                "the mass from each source")
+            page.select_option("#colour-by", "grade")
 
             # two more lots: 37.5 t is 75 % of capacity, above the 60 % limit
             _drive(page, asset, rest, [(13, 10_000.0, 0.4, 0), (14, 10_000.0, 0.6, 1)],

@@ -335,6 +335,12 @@ def test_feed_prediction(served):
     assert sum(body["profile"]["mass_kg"]) == pytest.approx(body["mass_kg"], rel=1e-9)
     assert len(body["profile"]["t_s"]) == 30 and body["profile"]["t_s"][-1] == 4.0
     assert set(body["tracking_ids"]) <= set(asset.particle_table(10**6, 0)["tracking_id"].tolist())
+    # per interval, the masses from each origin add up to the interval's mass
+    profile = body["profile"]
+    held_origins = set(asset.particle_table(10**6, 0)["origin"].tolist())
+    assert set(profile["origins"]) <= held_origins
+    assert len(profile["origin_mass_kg"]) == len(profile["origins"])
+    assert np.sum(profile["origin_mass_kg"], axis=0) == pytest.approx(profile["mass_kg"], abs=1e-6)
 
 
 def test_fifo_feed_is_the_oldest_bins():
@@ -348,6 +354,14 @@ def test_fifo_feed_is_the_oldest_bins():
     assert body["tracking_ids"] == [101, 102]
     profile_grades = [g for g in body["profile"]["grade"] if g is not None]
     assert profile_grades[0] == pytest.approx(0.8) and profile_grades[-1] == pytest.approx(0.2)
+    # bin 101 is source 1's, bin 102 source 0's: 1500 kg and 500 kg of the 2000 kg
+    profile = body["profile"]
+    assert profile["origins"] == [0, 1]
+    assert [sum(row) for row in profile["origin_mass_kg"]] == pytest.approx([500.0, 1500.0])
+    # source 1 leaves first, then source 0 (FIFO)
+    first = [k for k, m in enumerate(profile["mass_kg"]) if m > 0]
+    assert profile["origin_mass_kg"][1][first[0]] > 0 == profile["origin_mass_kg"][0][first[0]]
+    assert profile["origin_mass_kg"][0][first[-1]] > 0 == profile["origin_mass_kg"][1][first[-1]]
 
 
 def test_events_are_the_lots_in_and_out():

@@ -15,21 +15,29 @@ const EVENTS_KEEP = 5000;
 const EVENTS_SHOWN = 200;
 const ALARMS_SHOWN = 50;
 const STALE_MS = 5000;        // a value older than this is marked
+// The feed prediction is the stockpile's slowest answer (30 predictions; a ROM
+// pile of 1,500 t took 2.9 s on a loaded machine), and the stockpile answers one
+// request at a time: it is read after the other values, with its own time-out,
+// at most FEED_SHARE of the time (a feed that took 1 s is read again 5 s later;
+// a fast one every poll), and a slow or failed one only ages the feed shown.
+const FEED_SHARE = 0.2;
+const REQUEST_TIMEOUT_MS = 4000, FEED_TIMEOUT_MS = 16000;  // the monitor's proxy: 3 s, feed 15 s
 
 // Shared with tests and the curious: what the page shows right now.
 const state = window.monitorState = {
   updates: 0, reachable: null, colourBy: "grade", lastTime: null, config: null,
   history: [], particles: null, fields: null, feed: null, totals: null,
   events: [], lastSeq: 0, alarms: [], alarmsShown: null, restarts: [], zoom: null,
-  received: {}, charts: {}, scheme: null, originNames: new Map(),
+  received: {}, charts: {}, scheme: null, originNames: new Map(), originColours: new Map(),
+  feedCostMs: 0, restarted: false,
 };
 
 const $ = (id) => document.getElementById(id);
 
 // --------------------------------------------------------------- data access
-async function getJSON(path) {
+async function getJSON(path, timeoutMs = REQUEST_TIMEOUT_MS) {
   const controller = new AbortController();
-  const timer = setTimeout(() => controller.abort(), 4000);
+  const timer = setTimeout(() => controller.abort(), timeoutMs);
   try {
     const response = await fetch(path, {signal: controller.signal, cache: "no-store"});
     const body = await response.json();
@@ -40,22 +48,40 @@ async function getJSON(path) {
   }
 }
 
-const api = (path) => getJSON("/api/" + path);
+const api = (path, timeoutMs) => getJSON("/api/" + path, timeoutMs);
 
 async function fetchAll() {
   const totals = await api("totals");
   if (state.lastTime !== null && totals.time_s < state.lastTime) restarted(state.lastTime, totals.time_s);
   const since = state.history.length ? state.history[state.history.length - 1].time_s : -1e12;
-  const [history, particles, fields, feed, events] = await Promise.all([
+  const [history, particles, fields, events] = await Promise.all([
     api("history?limit=" + HISTORY_KEEP + "&since=" + since),
     api("particles?limit=" + PARTICLE_LIMIT + "&stride=" +
         Math.max(1, Math.ceil(totals.particle_count / PARTICLE_LIMIT))),
     api("fields?nx=36&ny=18&field=mass,velocity"),
-    api("feed?horizon=" + FEED_HORIZON_S),
     api("events?since=" + state.lastSeq),
   ]);
   const alarms = await getJSON("/monitor/alarms");
-  return {totals, history, particles, fields, feed, events, alarms};
+  return {totals, history, particles, fields, events, alarms};
+}
+
+// The predicted feed, when due (see FEED_EVERY_MS); drawn as it arrives.
+async function pollFeed() {
+  const last = state.received.feed, wait = state.feedCostMs / FEED_SHARE;
+  if (last !== undefined && Date.now() - last < wait && !state.restarted) return;
+  state.restarted = false;
+  const start = Date.now();
+  try {
+    state.feed = await api("feed?horizon=" + FEED_HORIZON_S, FEED_TIMEOUT_MS);
+    state.received.feed = Date.now();
+    showFeed(state.feed);
+  } catch (error) {
+    console.warn("monitor: no feed prediction this time:", error);
+    if (!state.feed) $("feed-caption").textContent = "no feed prediction received yet (" +
+      (error.name === "AbortError" ? "the stockpile took longer than " +
+       `${FEED_TIMEOUT_MS / 1000} s` : error.message) + "); retrying";
+  }
+  state.feedCostMs = Date.now() - start;
 }
 
 // The stockpile's clock went back: a new run. Say so, and start the trends
@@ -68,6 +94,8 @@ function restarted(fromS, toS) {
   state.lastSeq = 0;
   state.zoom = null;
   state.originNames = new Map();
+  state.originColours = new Map();
+  state.restarted = true;  // the old run's feed prediction: read the new one at once
   $("restart-detail").textContent =
     `its clock went back from t = ${fromS.toFixed(1)} s to ${toS.toFixed(1)} s at ${clock(at)}; ` +
     "trends and events start again with the new run; the old run's active alarms are cleared.";
@@ -91,9 +119,9 @@ async function poll() {
     state.events = state.events.concat(data.events.events).slice(-EVENTS_KEEP);
     state.lastSeq = data.events.events.length
       ? data.events.events[data.events.events.length - 1].seq : data.events.last_seq;
-    Object.assign(state, {particles: data.particles, fields: data.fields, feed: data.feed,
+    Object.assign(state, {particles: data.particles, fields: data.fields,
                           totals: data.totals, lastTime: data.totals.time_s});
-    for (const source of ["totals", "particles", "feed", "events"]) state.received[source] = now;
+    for (const source of ["totals", "particles", "events"]) state.received[source] = now;
     // names are kept once seen: the events name sources whose particles have all left
     for (const o of data.particles.origin_names || []) state.originNames.set(o.origin, o.name);
     state.updates += 1;
@@ -103,13 +131,14 @@ async function poll() {
       showTotals(data.totals);
       showAlarms(data.alarms);
       drawPile();
-      showFeed(data.feed);
+      if (state.feed) drawFeedChart(state.feed);  // in the pile's colouring of now
       drawTrends();
       showEvents();
       showAges();
     } catch (error) {
       console.error("monitor drawing failed:", error);
     }
+    await pollFeed();
   }
   setTimeout(poll, POLL_MS);
 }
@@ -138,11 +167,15 @@ function showConfig(config) {
   state.config = config;
   const a = config.alarms;
   $("capacity").textContent = String(config.stockpile.capacity_t);
-  $("grade-band").textContent = `${a.grade_low_pct}–${a.grade_high_pct}`;
+  // a grade limit of 0 or 100 % can never be passed: that alarm is off (the default)
+  const gradeOff = a.grade_low_pct <= 0 && a.grade_high_pct >= 100;
+  $("grade-band").textContent = gradeOff ? "grade alarms off"
+    : `alarm band ${a.grade_low_pct}–${a.grade_high_pct} %`;
   $("alarm-limits").textContent = `(from the monitor's config: level ${a.level_low_pct}–` +
     `${a.level_high_pct} % of ${config.stockpile.capacity_t} t, dead band ` +
-    `${a.level_deadband_pct} %; grade ${a.grade_low_pct}–${a.grade_high_pct} %, dead band ` +
-    `${a.grade_deadband_pct} percentage points)`;
+    `${a.level_deadband_pct} %; ` + (gradeOff ? "grade alarms off: set a band for your ore" :
+    `grade ${a.grade_low_pct}–${a.grade_high_pct} %, dead band ` +
+    `${a.grade_deadband_pct} percentage points`) + ")";
   $("trend-range").value = String(config.trends.window_s);
   if ($("trend-range").value === "") {  // a window not in the list: add it
     const option = new Option(`last ${config.trends.window_s} s`, String(config.trends.window_s));
@@ -313,19 +346,27 @@ function rampColour(u) {
 
 // Shown value and unit of each colouring (grade in %, like everywhere else).
 const SHOWN = {grade: {scale: 100, label: "grade [%]", digits: 2},
-               hardness: {scale: 1, label: "hardness [-]", digits: 3},
+               hardness: {scale: 1, label: "hardness (relative) [-]", digits: 3},
                residence_time: {scale: 1, label: "residence time [s]", digits: 0},
                origin: {scale: 1, label: "origin", digits: 0}};
 // origin is the index of the source a particle was mined at (named by the
 // stockpile's origin_names); more sources than colours go on a ramp of the index.
 const ORIGIN_RAMP_LABEL = "origin: source index";
 
+// A source's colour is fixed by the order in which the page first saw it, so that
+// it keeps its colour while other sources come and go, in the pile and the feed bars.
+function originColour(origin) {
+  if (!state.originColours.has(origin)) state.originColours.set(origin, state.originColours.size);
+  const k = state.originColours.get(origin);
+  return k < CATEGORIES.length ? CATEGORIES[k] : rampColour((k % 10) / 9);
+}
+
 function colouring(values, attribute) {
   const finite = values.filter((v) => v !== null && Number.isFinite(v));
   const distinct = [...new Set(finite)].sort((a, b) => a - b);
   if (attribute === "origin" && distinct.length <= CATEGORIES.length) {
-    const index = new Map(distinct.map((v, i) => [v, i]));
-    return {attribute, categorical: distinct, colour: (v) => CATEGORIES[index.get(v) ?? 0]};
+    distinct.forEach(originColour);
+    return {attribute, categorical: distinct, colour: originColour};
   }
   let lo = finite.length ? Math.min(...finite) : 0, hi = finite.length ? Math.max(...finite) : 1;
   if (attribute === "residence_time") lo = 0;
@@ -498,7 +539,8 @@ const TRENDS = [
                    ["low level", c.alarms.level_low_pct / 100 * c.stockpile.capacity_t]]},
   {id: "grade", title: "Grade", unit: "%", digits: 2, zero: true,
    series: [{label: "grade", value: rowsOf("grade", 100), colour: "#3fb950"}],
-   limits: (c) => [["grade high", c.alarms.grade_high_pct], ["grade low", c.alarms.grade_low_pct]]},
+   limits: (c) => [["grade high", c.alarms.grade_high_pct], ["grade low", c.alarms.grade_low_pct]]
+     .filter(([, v]) => v > 0 && v < 100)},  // 0 and 100 % are no limits: that alarm is off
   {id: "hardness", title: "Hardness (relative)", unit: "-", digits: 3, minSpan: 0.1,
    series: [{label: "hardness", value: rowsOf("hardness"), colour: "#58a6ff"}]},
   {id: "d80", title: "D80", unit: "mm", digits: 1, zero: true,
@@ -660,26 +702,44 @@ function drawFeedChart(feed) {
   const barW = (w - left - right) / n;
   const attribute = state.colourBy;
   const coloured = profile[attribute] !== undefined && state.scheme && !state.scheme.categorical;
+  // coloured by origin: each bar stacked by the mass from each source, in the pile's colours
+  const stacked = attribute === "origin" && Array.isArray(profile.origins) && state.scheme &&
+    state.scheme.attribute === "origin" && Boolean(state.scheme.categorical);
   ctx.strokeStyle = GRID; ctx.lineWidth = 1;
   for (let m = 0; m <= ytop + 1e-9; m += step) {
     ctx.beginPath(); ctx.moveTo(left, Y(m)); ctx.lineTo(w - right, Y(m)); ctx.stroke();
     ctx.fillText(`${m.toPrecision(2)} t`, 2, Y(m) + 4);
   }
   for (let i = 0; i < n; i++) {
+    if (stacked) {
+      let below = 0;
+      profile.origins.forEach((origin, k) => {
+        const m = Math.max(profile.origin_mass_kg[k][i] || 0, 0) / 1000;
+        ctx.fillStyle = originColour(origin);
+        ctx.fillRect(left + i * barW + 1, Y(below + m), barW - 2, Y(below) - Y(below + m));
+        below += m;
+      });
+      continue;
+    }
     const value = coloured ? profile[attribute][i] : null;
     ctx.fillStyle = coloured ? (value === null ? "#444" : state.scheme.colour(value)) : "#6e7681";
     ctx.fillRect(left + i * barW + 1, Y(masses[i]), barW - 2, Y(0) - Y(masses[i]));
   }
+  canvas.dataset.colouredBy = stacked ? "origin" : (coloured ? attribute : "none");
+  canvas.dataset.origins = stacked ? profile.origins.join(",") : "";
   ctx.fillStyle = MUTED;
   for (let s = 0; s <= profile.t_s[n - 1] + 1e-9; s += 10) {
     const x = left + (w - left - right) * s / profile.t_s[n - 1];
     ctx.fillText(String(s), x - 4, h - bottom + 12);
   }
   ctx.fillText("time from now [s]", left + (w - left - right) / 2 - 40, h - 4);
-  $("feed-caption").textContent = coloured
-    ? `bar height: mass leaving per ${interval.toPrecision(2)} s; colour: ${SHOWN[attribute].label} on the pile's colour bar`
-    : `bar height: mass leaving per ${interval.toPrecision(2)} s; grey: the prediction has no ` +
-      `${SHOWN[attribute].label} per interval (colour by grade or hardness to colour the bars)`;
+  const per = `bar height: mass leaving per ${interval.toPrecision(2)} s`;
+  $("feed-caption").textContent = stacked
+    ? `${per}; colours: the mass from each source, as in the origin key under the pile`
+    : coloured
+      ? `${per}; colour: ${SHOWN[attribute].label} on the pile's colour bar`
+      : `${per}; grey: the prediction has no ${SHOWN[attribute].label} per interval ` +
+        "(colour by grade, hardness or origin to colour the bars)";
 }
 
 // -------------------------------------------------------------------- start
