@@ -118,7 +118,16 @@ class Progress:
             print(message, file=self.stream, flush=True)
 
     def close(self, extra: str = "") -> None:
-        """The final line: where the run ended and how long it took."""
+        """The final line: where the run ended and how long it took. A run that
+        ends before its estimated total (a pile that settled early) ends its bar
+        there, at 100 %, and says so."""
+        if self.total and self.done < self.total * (1 - 1e-3):
+            ended = (f"ended at {self.done:g} s of the estimated {self.total:g} s"
+                     if self.unit == UNIT else f"ended after {self.done:g} of {self.total:g}")
+            extra = ", ".join(p for p in (extra, ended) if p)
+            self.total = self.done
+            if self._bar is not None:
+                self._bar.total = self._shown(self.done)
         self.update(self.done, extra, force=True)
         if self._bar is not None:
             self._bar.close()

@@ -141,6 +141,12 @@ def test_cli_pile_then_discharge_writes_summary_and_pictures(tmp_path, capsys):
     pile, out = tmp_path / "pile", tmp_path / "out"
     assert main(["dem", "pile", "--particles", "60", "--out", str(pile),
                  "--settle-time", "2"]) == 0
+    # progress in a log: plain lines, the compile notice first, and a last line at the
+    # run's end (100 %, with its wall time), also when the pile settled before 2 s
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("dem pile: ")]
+    assert "\r" not in err and "compile the DEM kernels" in lines[0]
+    assert "100%|##########|" in lines[-1] and "<00:00" in lines[-1]
     summary = json.loads((pile / "summary.json").read_text())
     assert summary["particles"] == 60
     for key in ("dt_s", "steps", "wall_s", "particle_steps_per_s", "angle_of_repose_deg",

@@ -49,7 +49,9 @@ def test_log_gets_plain_throttled_lines_with_label_speed_and_remaining_time(cloc
     assert "?sim-s/s" in first  # nothing measured yet
     # speed and remaining time from the first line on (start-up excluded): 599.5 s in 10 s
     assert "50%|#####     | 600.0/1200.0 [00:10<00:10, 59.95sim-s/s]" in second
-    assert "[00:20<00:20, 29.98sim-s/s]" in last
+    # the run ended there, halfway through its estimate: the last line says so
+    assert last.endswith("600.0/600.0 [00:20<00:00, 29.98sim-s/s, "
+                         "ended at 600 s of the estimated 1200 s]")
 
 
 def test_terminal_gets_tqdm_frames_and_a_final_line_break():
@@ -99,3 +101,22 @@ def test_a_run_past_its_estimated_total_says_so(clock):
     clock.now += 2.0
     lines.update(13.0, force=True)
     assert log.getvalue() == "dem pile: 13.0 s [00:02, ?sim-s/s, estimated 12.5 s]\n"
+
+
+def test_a_run_that_ends_before_its_estimated_total_ends_its_bar_there(clock):
+    log = io.StringIO()
+    lines = Progress("dem pile", 2.0, stream=log)
+    lines.update(0.5)
+    clock.now += 3.0
+    lines.update(1.5)
+    lines.close("300 particles")
+    last = log.getvalue().splitlines()[-1]
+    assert last == ("dem pile: 100%|##########| 1.5/1.5 [00:03<00:00,  3.00s/sim-s, "
+                    "300 particles, ended at 1.5 s of the estimated 2 s]")
+    terminal = Terminal()
+    bar = Progress("dem pile", 2.0, stream=terminal, every_s=0.0)
+    bar.update(0.5)
+    bar.update(1.5)
+    bar.close()
+    assert "100%" in terminal.getvalue().rsplit("\r", 1)[-1]
+    assert "ended at 1.5 s of the estimated 2 s" in terminal.getvalue()
