@@ -4,8 +4,12 @@ the whole belts, and a plant reopened from the file is the same plant, bin for
 bin on both belts."""
 
 import json
+import sqlite3
 
 import numpy as np
+import pytest
+
+from cosim.errors import ValidationError
 
 from opcua_server.config import load_config
 from opcua_server.ledger_store import LedgerStore
@@ -85,3 +89,12 @@ def test_a_save_writes_what_changed_not_the_whole_belts(tmp_path):
     assert rows == plant.cv101.n_bins  # the bins on the belt, none of those discharged
     (inbound,) = store.db.execute("SELECT count(*) FROM inbound").fetchone()
     assert inbound == plant.last_sequence
+
+
+def test_a_ledger_of_another_schema_is_refused_naming_the_file(tmp_path):
+    path = tmp_path / "ledger.sqlite"
+    with sqlite3.connect(path) as db:  # a schema-1 file: both belts as JSON in the state
+        db.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)")
+        db.executemany("INSERT INTO meta VALUES (?, ?)", [("ledger_id", "x"), ("schema", "1")])
+    with pytest.raises(ValidationError, match=f"ledger: .*schema 2.*{path} has schema 1"):
+        LedgerStore(path)
