@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import math
 import os
 import re
 import shutil
@@ -302,6 +303,57 @@ def test_monitor_page_against_the_mine_simulator(tmp_path):
             if proc is not None:
                 _stop(proc)
     assert (tmp_path / "monitor_mine_simulator.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_pile_with_geometry_is_drawn_as_particle_positions_with_a_metre_scale(tmp_path):
+    """A ROM stockpile (particles with positions) is titled as particle positions,
+    not schematic; its metre scale is a round length of a few tenths of the pile's
+    width; the velocity key names a round speed; the origin key names the sources."""
+    _ensure_chromium()
+    sync_api = pytest.importorskip("playwright.sync_api")
+    import warnings
+
+    from surrogate.rest import serve_in_thread
+    from surrogate.stockpile import StockpileAsset
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a small pile is outside the ROM's training range
+        asset = StockpileAsset("rom", seed=0, source_names={0: "north pit", 1: "south pit"})
+        for k in range(20):
+            asset.receive_bin(k + 1, 7_500.0, 0.01, 1.0, source=k % 2)
+        asset.set_discharge_rate(200.0)
+        for _ in range(4):
+            asset.step(0.5)
+    rest = serve_in_thread(asset)
+    monitor = None
+    try:
+        monitor, match = _start_monitor(f"http://127.0.0.1:{rest.port}")
+        with sync_api.sync_playwright() as playwright:
+            browser = _launch(playwright)
+            try:
+                page = browser.new_page(viewport={"width": 1600, "height": 1000})
+                page.goto(match.group(0) + "?poll=400")
+                pile = page.locator("#pile")
+                sync_api.expect(pile).to_have_attribute("data-layout", "particles", timeout=20_000)
+                sync_api.expect(page.locator("#pile-title")).to_have_text(
+                    "Pile cross-section — particle positions")
+                _, particles = get(f"http://127.0.0.1:{rest.port}/particles?limit=50000")
+                width_m = max(particles["x"]) - min(particles["x"])
+                metres = float(pile.get_attribute("data-scale-metres"))
+                mantissa = metres / 10 ** math.floor(math.log10(metres))
+                assert round(mantissa, 9) in (1.0, 2.0, 5.0)
+                assert 0.05 * width_m <= metres <= 0.5 * width_m, (metres, width_m)
+                speed = float(pile.get_attribute("data-velocity-key"))
+                assert round(speed / 10 ** math.floor(math.log10(speed)), 9) in (1.0, 2.0, 5.0)
+                page.select_option("#colour-by", "origin")
+                sync_api.expect(page.locator("#legend-min")).to_have_text("north pitsouth pit")
+                page.screenshot(path=str(tmp_path / "monitor_rom.png"), full_page=True)
+            finally:
+                browser.close()
+    finally:
+        if monitor is not None:
+            _stop(monitor)
+        rest.stop()
 
 
 def test_monitor_command_refuses_a_bad_stockpile_url():
