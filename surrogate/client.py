@@ -672,7 +672,7 @@ class StockpileClient:
         """Final state for audits: held mass per tracking id, counters, timing."""
         times = np.array(self.step_times_ms) if self.step_times_ms else np.zeros(1)
         summary = {
-            "time_s": self.asset.time, "model": self.asset.model_name,
+            "time_s": self.asset.time, "model": self.asset.model_name, "seed": self.o.seed,
             "last_applied": self.state.last_applied,
             "outflow_sequence": self.state.outflow_sequence,
             "outbox": len(self.state.outbox),

@@ -147,15 +147,15 @@ def test_integration_figures_show_every_source(figures, tmp_path):
     # bins 1 and 2 of source 0 and bin 3 of source 1 entered; only source 0's ore has left
     ledger = {"outflow_log": log, "source_of": {"1": 0, "2": 0, "3": 1},
               "delivered_by_source": {"0": 1e3}, "time_s": 10.0}
-    _plots(tmp_path, ledger, {"history": rows, "model": "fifo"})
+    _plots(tmp_path, ledger, {"history": rows, "model": "fifo", "seed": 0})
     _check(figures, ["stockpile_mass_grade.png", "cv301_composition.png"],
-           run="storage model fifo")
+           run="seed 0, storage model fifo")
     texts = [t.get_text() for t in
              figures["cv301_composition.png"][2].axes[0].get_legend().get_texts()]
     assert texts == ["source 0: 2.5 t", "source 1: 0.0 t"]
     # with the names the plant's feed lots give (opcua_server.config.source_names)
     figures.clear()
-    _plots(tmp_path, ledger, {"history": rows, "model": "fifo"},
+    _plots(tmp_path, ledger, {"history": rows, "model": "fifo", "seed": 0},
            {0: "left source", 1: "right source"})
     texts = [t.get_text() for t in
              figures["cv301_composition.png"][2].axes[0].get_legend().get_texts()]

@@ -99,6 +99,7 @@ def test_the_client_names_the_sources_it_is_given_also_over_a_checkpoint(tmp_pat
     resumed = StockpileClient(ClientOptions(server_url="opc.tcp://127.0.0.1:1/",
                                             checkpoint=path, source_names=names))
     assert resumed.state.asset.origin_names() == names
+    assert resumed.write_summary()["seed"] == 0  # the figures' titles name it
 
 
 def test_a_crafted_pickle_checkpoint_runs_no_code_and_the_error_names_the_file(tmp_path):
