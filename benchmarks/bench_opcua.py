@@ -77,6 +77,10 @@ def run_rate(rate: float, seconds: float, model: str, bins_per_plant_s: float = 
             for proc in (client, server):
                 if proc is not None:
                     proc.stop()
+        # why the client reconnected, if it did (its log goes with the temporary folder)
+        reconnect_reasons = [line.split("connection lost ", 1)[1] for line in
+                             client.log_path.read_text(errors="replace").splitlines()
+                             if "connection lost " in line]
     result = audit(ledger, summary)
     result.pop("lost_examples"), result.pop("duplicated_examples")
     out = {
@@ -90,6 +94,7 @@ def run_rate(rate: float, seconds: float, model: str, bins_per_plant_s: float = 
         "max_lag_wall_s": ledger["max_surrogate_lag_s"] / speed,
         "step_time_p99_ms": summary["step_time_p99_ms"], "exchange_cycle_ms": CYCLE_MS,
         "exchange_cycles": summary["cycles"], "reconnects": summary["reconnects"],
+        "reconnect_reasons": reconnect_reasons,
         "largest_step_s": summary["largest_step_s"],
         "caught_up": (summary["time_s"] >= ledger["time_s"] - 1e-9
                       and result["pending_unacknowledged"] == 0),

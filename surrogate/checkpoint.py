@@ -116,7 +116,9 @@ def save_checkpoint(path: Path, state) -> None:
     """Write ``state`` (a ``ClientState``) to ``path`` atomically and durably."""
     encoder = _Encoder()
     tree = json.dumps(encoder.encode(state), allow_nan=False, separators=(",", ":")).encode()
-    body = [tree] + [a.tobytes() for a in encoder.arrays]
+    # the arrays' own buffers, not copies (tobytes was a quarter of a checkpoint's
+    # time on a 12,000-particle pile); nothing changes them while this runs
+    body = [tree] + [memoryview(np.ascontiguousarray(a)).cast("B") for a in encoder.arrays]
     digest = hashlib.sha256()
     for chunk in body:
         digest.update(chunk)
