@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 from pydantic import model_validator
 
@@ -69,6 +70,7 @@ class BeltConveyor(Asset):
         self.bin_length = float(bin_length)
         self._direction = (self.end - self.start) / max(math.dist(self.end, self.start),
                                                         1e-12)
+        self._end_location = tuple(float(c) for c in self.end)
         self._travel = 0.0
         self._ids = np.empty(0, dtype=np.uint64)
         self._bin_start = np.empty(0)        # tape coordinate of each particle's bin [m]
@@ -89,25 +91,44 @@ class BeltConveyor(Asset):
             self._mass_kg = 0.0
             return
         store = self.particles
-        distance = self._travel - self._bin_start
-        # bins are loaded in order, so the discharged ones are a prefix
-        count = int(np.searchsorted(-distance, -self.length, side="right"))
         slots = store.slots(self._ids)
+        # one compiled pass: the discharged bins (a prefix: bins are loaded in order) go
+        # to the end, the others to their place along the belt
+        count = _move_along(self._travel, self._bin_start, self.length, self.start,
+                            self._direction, self.end, slots, store.position)
         if count:
             leaving, self._ids = self._ids[:count], self._ids[count:]
             out_slots, slots = slots[:count], slots[count:]
-            distance = distance[count:]
             self._bin_start = self._bin_start[count:]
-            store.position[out_slots] = self.end
             self._delivered_kg += float(store.mass[out_slots].sum())
-            self.plant.record("exit", self.name, t + dt, out_slots, tuple(self.end))
+            self.plant.record("exit", self.name, t + dt, out_slots, self._end_location)
             self.send("out", leaving, t + dt)
-        store.position[slots] = self.start + distance[:, None] * self._direction
         self._mass_kg = float(store.mass[slots].sum())
 
     def outputs(self) -> dict[str, float]:
         return {"mass_kg": self._mass_kg, "delivered_kg": self._delivered_kg,
                 "running": 1.0 if float(self.inputs.get("running", 1.0)) > 0.5 else 0.0}
+
+
+@numba.njit(cache=True)
+def _move_along(travel, bin_start, length, start, direction, end, slots, position) -> int:
+    """Place the belt's particles (``slots``, in loading order, each in the bin starting
+    at ``bin_start`` [m] of tape) at travel ``travel`` [m]: those whose bin has gone
+    ``length`` or more at ``end``, the others at start + (travel - bin_start) direction.
+    Returns how many reached the end (a prefix)."""
+    count = 0
+    while count < slots.size and travel - bin_start[count] >= length:
+        count += 1
+    for i in range(slots.size):
+        slot = slots[i]
+        if i < count:
+            for k in range(3):
+                position[slot, k] = end[k]
+        else:
+            distance = travel - bin_start[i]
+            for k in range(3):
+                position[slot, k] = start[k] + distance * direction[k]
+    return count
 
 
 # ------------------------------------------------------------------ scenario kind
