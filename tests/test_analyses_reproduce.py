@@ -19,6 +19,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 def reproduce(name: str, out: Path) -> tuple[dict, subprocess.CompletedProcess]:
@@ -69,7 +70,8 @@ def test_reproduce_sensitivity(tmp_path):
 def test_reproduce_feed_prediction(tmp_path):
     summary, _ = reproduce("feed-prediction", tmp_path)
     grade, hardness = summary["feed_grade_prediction_mae"], summary["feed_hardness_prediction_mae"]
-    assert {"fifo", "mixing"} <= set(grade)
+    assert set(grade) == {"fifo", "mixing", "rom"}  # the shipped ROM by default
+    assert np.isfinite(grade["rom"]) and np.isfinite(hardness["rom"])
     # plug flow knows the order of leaving; perfect mixing only the pile average
     assert grade["fifo"] < 0.01 and hardness["fifo"] < 0.01
     assert grade["mixing"] > 5 * grade["fifo"]

@@ -195,23 +195,28 @@ OUTFLOW_WINDOW_S = 2.0
 QUICK_UNTIL_S = 450.0
 FULL_UNTIL_S = 1500.0
 ROM_MODEL_ENV = "MINETWIN_ROM_MODEL"
-"""Environment variable naming a trained ROM file (``minetwin rom train``); when set and
-the "rom" storage model is registered, the ROM is compared too."""
+"""Environment variable naming a trained ROM file (``minetwin rom train``) to compare
+instead of the ROM's own default model (the shipped paper-scale one)."""
 
 
 def storage_models() -> tuple[list[tuple[str, dict]], dict]:
-    """(name, options) of the storage models to compare, and the ones skipped with why."""
+    """(name, options) of the storage models to compare, and the ones skipped with why:
+    FIFO, perfect mixing and, where the "rom" storage model is registered, the ROM (the
+    paper's funnel-zone prediction) with its default model or the file ``ROM_MODEL_ENV``
+    names."""
     import os
 
     from cosim.storage import registered_models
 
     models, skipped = [("fifo", {}), ("mixing", {})], {}
-    if "rom" in registered_models():
-        path = os.environ.get(ROM_MODEL_ENV)
-        if path and Path(path).is_file():
-            models.append(("rom", {"model": path}))
-        else:
-            skipped["rom"] = f"no trained model: set {ROM_MODEL_ENV} to a `minetwin rom train` file"
+    if "rom" not in registered_models():
+        skipped["rom"] = "no storage model named rom is registered"
+        return models, skipped
+    path = os.environ.get(ROM_MODEL_ENV)
+    if path and not Path(path).is_file():
+        raise ValidationError(ROM_MODEL_ENV, "the path of a ROM model file (minetwin rom train)",
+                              f"got {path!r}, which is no file")
+    models.append(("rom", {"model": path} if path else {}))
     return models, skipped
 
 

@@ -539,7 +539,9 @@ class RomStorage(StorageModel):
         rate = check_discharge_rate(discharge_rate)
         horizon = float(check_finite_range("horizon", horizon, 0.0, unit="s"))
         position, mass, index = self._pos.copy(), self._mass.copy(), np.arange(self._ids.size)
-        credit, taken_all, drained = self._credit_kg, [], self._drained.copy()
+        # no column has drained before the first particle arrives
+        credit, taken_all = self._credit_kg, []
+        drained = None if self._drained is None else self._drained.copy()
         order = self._order
         substeps = max(1, int(np.ceil(horizon / self.max_step)))
         h = horizon / substeps
