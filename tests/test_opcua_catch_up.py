@@ -105,6 +105,9 @@ def test_a_pile_filling_from_empty_catches_up_in_slices_that_grow_with_it():
     assert sliced.asset.held_by_tracking_id() == pytest.approx(stepped.asset.held_by_tracking_id())
     assert len(stepped.asset.history()) >= 3000
     assert len(sliced.asset.history()) < 300, len(sliced.asset.history())
+    # what the client writes to HeldMass and AverageGrade: the pile's totals, exactly
+    totals = sliced.asset.totals()
+    assert sliced._held_mass_and_grade() == (totals["held_mass_kg"], totals["grade"])
 
 
 def _stockpile_time(url: str) -> float | None:
