@@ -21,6 +21,7 @@ REPRODUCTIONS: dict[str, str] = {
     "feed-prediction": "cosim.analyses.feed_prediction",
     "grindability": "cosim.analyses.grindability",
     "sensitivity": "cosim.analyses.sensitivity",
+    "pile-states": "surrogate.rom.pile_states",
 }
 """Reproducible results by name -> module path."""
 
