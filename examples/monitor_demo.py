@@ -134,8 +134,8 @@ def main(argv=None) -> int:
             page = browser.new_page(viewport={"width": 1600, "height": 1000})
             page.goto(page_url)
             screens = {name: browser.new_page(**options) for name, options in SCREENS.items()}
-            for small in screens.values():
-                small.goto(page_url)
+            for small in screens.values():  # polling every 3 s: less load on the stockpile
+                small.goto(page_url + "?poll=3000")
             time.sleep(args.seconds)
             page.wait_for_function("window.monitorState.updates >= 2", timeout=60_000)
             page.screenshot(path=str(args.out / "monitor.png"), full_page=True)

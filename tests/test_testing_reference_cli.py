@@ -48,6 +48,10 @@ def test_compare_passes_a_rerun_and_fails_a_changed_signal_with_table_and_overla
     lines = captured.out.splitlines()
     row = next(line for line in lines if line.startswith("mill_fmu.power"))
     assert row.split()[-1] == "FAIL"
+    # the table gives each signal's unit; the overlays go under --out, none beside the CSV
+    header = next(line for line in lines if line.startswith("signal"))
+    assert header.split()[:2] == ["signal", "unit"] and row.split()[1] == "W"
+    assert not list(changed.parent.glob("*.png")) and not (changed.parent / "overlays").exists()
     assert next(line for line in lines if line.startswith("crusher_fmu.power")).endswith("pass")
     assert "1 of 5 signal(s) outside their band" in captured.out
     assert "signal 'mill_fmu.power' leaves its tolerance band" in captured.err
