@@ -99,6 +99,11 @@ def _check_operator(field: str, matrix, *, finer_only: bool, active=None) -> np.
     if arr.shape != (N_CLASSES, N_CLASSES):
         raise ValidationError(field, f"a ({N_CLASSES}, {N_CLASSES}) array",
                               f"got shape {arr.shape}")
+    # checked on every pass of the jaw and mill update: one compiled pass when valid,
+    # the checks below only to say what is wrong
+    if _operator_valid(arr, np.ones(N_CLASSES, dtype=np.bool_) if active is None
+                       else np.asarray(active, dtype=np.bool_), finer_only):
+        return arr
     check_finite_range(field, arr, 0.0, 1.0 + 1e-9)
     columns = np.arange(N_CLASSES) if active is None else np.flatnonzero(active)
     sums = arr[:, columns].sum(axis=0)
@@ -114,6 +119,27 @@ def _check_operator(field: str, matrix, *, finer_only: bool, active=None) -> np.
             raise ValidationError(field, "zero on and below the diagonal: broken mass goes to "
                                   "finer classes only", f"[{k}, {columns[j]}] = {arr[k, columns[j]]!r}")
     return arr
+
+
+@njit(cache=True)
+def _operator_valid(arr, active, finer_only) -> bool:
+    """True when ``_check_operator``'s checks all pass: every entry in [0, 1 + 1e-9], each
+    ``active`` column summing to 1 within 1e-9 and, ``finer_only``, zero on and below
+    the diagonal."""
+    n = arr.shape[0]
+    for j in range(n):
+        total = 0.0
+        for i in range(n):
+            d = arr[i, j]
+            if not 0.0 <= d <= 1.0 + 1e-9:
+                return False
+            if active[j]:
+                total += d
+                if finer_only and i >= j and d > 0.0:
+                    return False
+        if active[j] and abs(total - 1.0) > 1e-9:
+            return False
+    return True
 
 
 def apply_fragmentation(f_rows, fragmentation_map) -> np.ndarray:
@@ -266,23 +292,10 @@ def mill_operators(breakage_rate, daughter_fraction, escape_rate) -> MillOperato
 @njit(cache=True)
 def _operators_valid(rate, escape, daughter) -> bool:
     """True when ``mill_operators``' checks all pass (False: run them to say which fails)."""
-    n = rate.size
-    for k in range(n):
+    for k in range(rate.size):
         if not (0.0 <= rate[k] < np.inf and 0.0 <= escape[k] < np.inf):
             return False
-    for j in range(n):
-        total = 0.0
-        for i in range(n):
-            d = daughter[i, j]
-            if not 0.0 <= d <= 1.0 + 1e-9:
-                return False
-            if rate[j] > 0.0:
-                total += d
-                if i >= j and d > 0.0:
-                    return False
-        if rate[j] > 0.0 and abs(total - 1.0) > 1e-9:
-            return False
-    return True
+    return _operator_valid(daughter, rate > 0.0, True)
 
 
 def _advance(x, h, operators: MillOperators, dt: float, method: str, substeps: int):
