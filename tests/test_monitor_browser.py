@@ -114,7 +114,7 @@ def _check_shown_values_equal_rest(page, stockpile_url):
     row = history["rows"][0]
     assert row["time_s"] == shown["time"]
     assert float(shown["mass"]) == row["held_mass_kg"] > 0
-    assert shown["massText"] == f"{row['held_mass_kg'] / 1000:.3f}"
+    assert shown["massText"] == f"{row['held_mass_kg'] / 1000:.1f}"
     assert float(shown["grade"]) == row["grade"]
     assert shown["gradeText"] == f"{row['grade'] * 100:.2f}"
     return shown

@@ -186,7 +186,7 @@ function showConfig(config) {
 
 function showTotals(t) {
   setNumber("sim-time", t.time_s, 1);
-  setNumber("held-mass", t.held_mass_kg, 3, 1e-3);
+  setNumber("held-mass", t.held_mass_kg, 1, 1e-3);  // 0.1 t: one 100 kg particle
   const fill = fillPercent(t);
   setNumber("fill-pct", fill, 1);
   $("fill-level").style.width = Math.min(Math.max(fill, 0), 100) + "%";
