@@ -209,6 +209,7 @@ class RomStorage(StorageModel):
         self.move_interval = float(check_finite_range("move_interval", move_interval, 0.0,
                                                       unit="s"))
         self._unmoved = 0.0  # seconds since the bulk last moved
+        self._bulk_in_store = False  # the store holds the bulk's positions and velocities
         self.inflow_window = float(check_finite_range("inflow_window", inflow_window, 0.0,
                                                       low_open=True, unit="s"))
         self.model: RomModel | None = None
@@ -334,8 +335,14 @@ class RomStorage(StorageModel):
         self._mass = np.concatenate((self._mass, mass))
         self._pos = np.concatenate((self._pos, position))
         slots = self.particles.slots(ids)
-        self.particles.position[slots, :2] = position
-        self.particles.position[slots, 2] = 0.0
+        if self._field is not None:
+            g = self.model.grid
+            write_positions(self._field, g.x_min, g.y_min, g.dx, g.dy,
+                            np.ascontiguousarray(position, dtype=np.float64), slots,
+                            self.particles.position, self.particles.velocity)
+        else:
+            self.particles.position[slots, :2] = position
+            self.particles.position[slots, 2] = 0.0
 
     def inflow_rate(self, t: float) -> float:
         """Inflow control signal [kg/s]: mass received in the last ``inflow_window`` s."""
@@ -372,6 +379,7 @@ class RomStorage(StorageModel):
                 or rate != self._field_rate):
             self._field = self.velocity_field(t, rate)
             self._field_time, self._field_rate = t, rate
+            self._bulk_in_store = False
         return self._field
 
     def _keep(self, keep: np.ndarray) -> None:
@@ -394,6 +402,8 @@ class RomStorage(StorageModel):
         if dispersion:
             disperse(position, field, grid, self.model.dispersivity, h, self.rng,
                      c.x_min, c.x_max, c.floor)
+        if position is self._pos:
+            self._bulk_in_store = False
         return settle(c, self._width, position, mass, hint=hint)
 
     def _nearest_first(self, position, count_hint: int) -> np.ndarray:
@@ -457,15 +467,19 @@ class RomStorage(StorageModel):
 
     def _write_back(self) -> None:
         """Positions and velocities into the particle store (sensors, monitor): the
-        field's velocity for the bulk, the DEM's for the surface layer."""
-        slots = self.particles.slots(self._ids)
-        if self._field is not None and self._ids.size:
-            g = self.model.grid
-            write_positions(self._field, g.x_min, g.y_min, g.dx, g.dy, self._pos, slots,
-                            self.particles.position, self.particles.velocity)
-        else:
-            self.particles.position[slots, :2] = self._pos
-            self.particles.position[slots, 2] = 0.0
+        field's velocity for the bulk, the DEM's for the surface layer. The bulk is
+        written when it has moved or its field changed since it was last written (the
+        particles joining it are written as they join)."""
+        if not self._bulk_in_store and self._ids.size:
+            slots = self.particles.slots(self._ids)
+            if self._field is not None:
+                g = self.model.grid
+                write_positions(self._field, g.x_min, g.y_min, g.dx, g.dy, self._pos, slots,
+                                self.particles.position, self.particles.velocity)
+            else:
+                self.particles.position[slots, :2] = self._pos
+                self.particles.position[slots, 2] = 0.0
+            self._bulk_in_store = True
         free = self.surface_dem
         if free is not None and len(free):
             slots = self.particles.slots(free.ids)
