@@ -444,3 +444,36 @@ def test_an_exported_heldout_design_is_laid_out_and_scored(reduced_run, heldout_
     assert scored["dem_replicas"] == pd.HELDOUT_REPLICAS
     assert set(scored["tracking_error"]) == {"fifo", "mixing", "rom"}
     assert scored["tracking_error_spread"]["dem_noise_floor"]["n"] == 3  # every pair
+    _choices_agree_with_every_model_run(summary, scored)
+
+
+def _choices_agree_with_every_model_run(summary: dict, scored: dict) -> None:
+    """Fidelity cards calibrated from this evaluation, where FIFO, mixing, the ROM and
+    three DEM replicas ran on one scene: for a tracking-error target at each model's
+    measured error, the chosen model meets it and no cheaper model does; a target
+    below the DEM's noise floor is refused, naming the floor. Only the choice rule is
+    checked, so this holds whatever the chaotic replicas measured."""
+    from cosim.errors import ValidationError
+    from cosim.fidelity import OperatingPoint, choose
+    from surrogate.rom.fidelity_cards import cards_from_evaluation
+
+    cards = cards_from_evaluation(summary, provenance={"test": "reduced held-out design"})
+    scene = scored["scenario"]
+    point = OperatingPoint(float(scene["discharge_rate"]), float(scene["fill"]),
+                           float(summary["window_s"]))
+    floor = float(scored["tracking_error_dem_noise_floor"])
+    measured = {**{name: float(scored["tracking_error"][name])
+                   for name in ("fifo", "mixing", "rom")}, "dem": floor}
+    cost = {card.model: card.cost_at(point) for card in cards}
+    chosen = set()
+    for target in sorted(set(measured.values())):
+        if target < floor:
+            with pytest.raises(ValidationError, match="noise floor"):
+                choose(cards, point, tracking_error=target)
+            continue
+        choice = choose(cards, point, tracking_error=target)
+        chosen.add(choice.model)
+        assert measured[choice.model] <= target
+        assert all(measured[name] > target for name in measured
+                   if cost[name] < cost[choice.model]), (target, measured, cost)
+    assert "dem" in chosen or measured["dem"] > min(measured.values())

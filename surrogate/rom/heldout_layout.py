@@ -107,7 +107,8 @@ def write_layout(data, out, progress=None) -> dict:
                        "discharge_rate": spec["discharge_rate"],
                        "inflow_rate": spec["inflow_rate"], "duration": spec["duration"],
                        "particles": records[0]["particles_start"],
-                       "held_mass_start_kg": records[0]["held_mass_start_kg"],
+                       # the pile's mass at the start [kg], named as doe.Scenario names it
+                       "fill": records[0]["held_mass_start_kg"],
                        "replicas": [r["name"] for r in records],
                        "design": manifest["design"]})
     if not scenes:
