@@ -160,7 +160,23 @@ def test_integration_figures_show_every_source(figures, tmp_path):
     texts = [t.get_text() for t in
              figures["cv301_composition.png"][2].axes[0].get_legend().get_texts()]
     assert texts == ["left source: 2.5 t", "right source: 0.0 t"]
-    assert figures["cv301_composition.png"][2].axes[0].get_xlim() == (0.0, 10.0)
+    # a stockpile that lagged: 0.5 t reported after the clock stopped at 10 s is marked
+    figures.clear()
+    late = {**ledger, "outflow_log": log + [{"time_s": 10.0, "by_source": {"1": 500.0}}]}
+    _plots(tmp_path, late, {"history": rows, "model": "fifo", "seed": 0})
+    _check(figures, ["stockpile_mass_grade.png", "cv301_composition.png"],
+           run="seed 0, storage model fifo")
+    texts = [t.get_text() for t in
+             figures["cv301_composition.png"][2].axes[0].get_legend().get_texts()]
+    assert texts == ["source 0: 2.5 t", "source 1: 0.5 t", "end of the run; right of it: the "
+                     "totals, with 0.5 t reported after the end (the stockpile lagged)"]
+    # right of the end line the stack is as high as the totals (3.0 t)
+    stack = figures["cv301_composition.png"][2].axes[0].collections[-1]
+    top = stack.get_paths()[0].vertices
+    assert top[:, 1].max() == pytest.approx(3.0) and top[:, 0].max() == pytest.approx(10.3)
+    # the whole run, with room to see the step of the reports stamped at its end
+    # (9.0 s is the last row here, so nothing is marked)
+    assert figures["cv301_composition.png"][2].axes[0].get_xlim() == (0.0, pytest.approx(10.3))
 
 
 def test_grindability_figures_explain_the_bwi_scale(figures, tmp_path):

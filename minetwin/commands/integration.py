@@ -245,14 +245,26 @@ def _plots(out: Path, ledger: dict, summary: dict, names: dict | None = None) ->
         return names.get(int(source), "unknown source" if int(source) < 0 else f"source {source}")
 
     fig, ax = plt.subplots(figsize=(8, 4.5))
+    end = max(float(ledger.get("time_s", 0.0)), 1.0)
+    # reports the stockpile sends after the server's clock stopped (it lagged) are
+    # stamped at the end: a vertical step on the frame; the totals are held on to the
+    # right of the end line, so that the stack's height there is what the legend says
+    late = sum(sum(row["by_source"].values()) for row in log if row["time_s"] >= end - 1e-9)
     if log:
         cumulative = np.array([[row["by_source"].get(s, 0.0) for s in sources] for row in log])
         cumulative = np.cumsum(cumulative, axis=0) / 1e3
+        if late > 0:
+            times = np.append(times, end * 1.03)
+            cumulative = np.vstack([cumulative, cumulative[-1]])
         ax.stackplot(times, cumulative.T,
                      labels=[f"{named(s)}: {cumulative[-1, j]:.1f} t" for j, s in
                              enumerate(sources)])
+    if late > 0:
+        plotstyle.mark(ax, end, f"end of the run; right of it: the totals, with {late / 1e3:.1f}"
+                                f" t reported after the end (the stockpile lagged)")
+    if log:
         plotstyle.legend(ax, loc="upper left")
-    ax.set_xlim(0.0, max(float(ledger.get("time_s", 0.0)), 1.0))  # the whole run, not the outflow
+    ax.set_xlim(0.0, end * 1.03)  # the whole run, not the outflow
     ax.set_xlabel("simulation time [s]")
     ax.set_ylabel("mass loaded onto CV301 [t]")
     plotstyle.title(fig, "Outgoing belt CV301: composition by source (cumulative, stacked)", run)
