@@ -147,10 +147,12 @@ def _f16():
     return f16
 
 
-def build_funnel(size: StudySize, seed: int = 0) -> Dem:
-    """The funnel scene at rest (module docstring); tracking id = 1 m band."""
+def build_funnel(size: StudySize, stiffness: float, seed: int = 0) -> Dem:
+    """The funnel scene at rest (module docstring) at ``stiffness`` [N/m];
+    tracking id = 1 m band. Laid on a lattice without contacts: nothing to
+    settle."""
     half, b = size.funnel_width / 2.0, size.funnel_opening
-    cfg = DemConfig(floor_width=size.funnel_width,
+    cfg = DemConfig(normal_stiffness=stiffness, floor_width=size.funnel_width,
                     side_wall_height=FUNNEL_FLOOR_Y + size.funnel_fill + 1.0,
                     extra_walls=[[-half, FUNNEL_FLOOR_Y, -b / 2, FUNNEL_FLOOR_Y],
                                  [b / 2, FUNNEL_FLOOR_Y, half, FUNNEL_FLOOR_Y]],
@@ -184,12 +186,7 @@ def build_start_state(scene: str, stiffness: str, size: StudySize, folder: str,
     to ``folder``; returns the checkpoint's path."""
     k_n = STIFFNESSES[stiffness]
     if scene == "funnel":
-        dem = build_funnel(size, seed)
-        if stiffness != "soft":  # laid on a lattice without contacts: nothing to settle
-            path = Path(folder) / "funnel_lattice.npz"
-            dem.save_checkpoint(path)
-            dem = Dem.load_checkpoint(path, {"normal_stiffness": k_n})
-            path.unlink()
+        dem = build_funnel(size, k_n, seed)
     elif scene == "settled":
         dem = build_pile(size.settled_particles, k_n, seed)
     else:
