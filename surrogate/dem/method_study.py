@@ -396,7 +396,7 @@ def evaluate(rows: list[dict], size: StudySize) -> list[dict]:
         def errors(row):
             out = {"angle_error_deg": None, "discharge_rate_error": None,
                    "penetration_ratio_to_reference": None, "tracking_error": None}
-            if row["failure"] is not None and row["failure"]["kind"] in ("blow-up", "leaked"):
+            if row["failure"] is not None:  # stopped during the run: no observables
                 return out
             if row["angle_of_repose_deg"] is not None and ref["angle_of_repose_deg"] is not None:
                 out["angle_error_deg"] = abs(row["angle_of_repose_deg"]
