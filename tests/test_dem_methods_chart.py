@@ -122,3 +122,28 @@ def test_bad_workers_are_refused_with_exit_2_and_no_traceback(tmp_path):
     assert proc.returncode == 2
     assert "--workers" in proc.stderr and ">= 1" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def _row(method, **fields):
+    row = {"scene": "funnel", "stiffness": "soft", "method": method, "dt_s": 1e-5,
+           "dt_over_stable": 0.25 if method == "explicit" else None, "iterations": None,
+           "replica": 0, "simulated_s": 1.0, "mean_penetration": 1e-4,
+           "max_penetration": 1e-3, "angle_of_repose_deg": None, "discharge_rate_kg_s": 100.0,
+           "beverloo_kg_s": 120.0, "failure": None,
+           "outflow": {"time": [0.1, 0.6], "tracking_id": [0, 1], "mass": [50.0, 50.0]}}
+    row.update(fields)
+    return row
+
+
+def test_a_run_stopped_during_the_run_has_no_errors_and_keeps_its_failure():
+    stopped = {"kind": "compressed", "what": "overlap", "time_s": 0.3, "reason": "guard"}
+    rows = [_row("explicit"), _row("explicit", replica=1),
+            _row("nonsmooth", dt_s=0.011, dt_over_stable=None, iterations=10,
+                 discharge_rate_kg_s=None, beverloo_kg_s=None, failure=stopped,
+                 outflow={"time": [], "tracking_id": [], "mass": []})]
+    table = study.evaluate(rows, study.QUICK)
+    run = next(r for r in table if r["method"] == "nonsmooth")
+    assert run["failure"] == stopped
+    assert run["discharge_rate_error"] is None and run["tracking_error"] is None
+    reference = next(r for r in table if r["reference"])
+    assert reference["discharge_rate_error"] == 0.0 and reference["tracking_error"] == 0.0
