@@ -11,7 +11,7 @@ the per-task overhead, local process pool and a real Ray cluster, in one run.
 * The Ray cluster is started here on 127.0.0.1 (head + one worker node, one
   CPU each, ``ray start``) and stopped after.
 
-    .venv/bin/python benchmarks/bench_batch.py [--runs 4] [--empty 200]
+    .venv/bin/python benchmarks/bench_batch.py [--runs 4] [--seconds 5] [--empty 200]
 
 Prints one JSON object on stdout (progress on stderr); never asserts on time.
 """
@@ -32,13 +32,13 @@ from cosim import batch
 from surrogate.rom import paper_design as pd
 
 
-def design_of(runs: int) -> pd.Design:
-    """``runs`` runs from the reduced design's base pile, 5 s each at the rates of
-    its first run (distinct seeds, so distinct keys)."""
+def design_of(runs: int, seconds: float = 5.0) -> pd.Design:
+    """``runs`` runs from the reduced design's base pile, ``seconds`` [s] each at the
+    rates of its first run (distinct seeds, so distinct keys)."""
     reduced = pd.reduced_design()
     first = reduced.runs[0]
     return dataclasses.replace(reduced, name="bench", runs=tuple(
-        dataclasses.replace(first, name=f"bench_{k}", seed=k, duration=5.0,
+        dataclasses.replace(first, name=f"bench_{k}", seed=k, duration=seconds,
                             first_tracking_id=10_000 * (k + 1)) for k in range(runs)))
 
 
@@ -70,12 +70,15 @@ def overhead(executor, tasks: int) -> float:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=4, help="DEM runs of the design (4)")
+    parser.add_argument("--seconds", type=float, default=5.0,
+                        help="simulated seconds of each run [s] (5; longer runs weigh the "
+                             "workers' start-up less)")
     parser.add_argument("--empty", type=int, default=200, help="empty tasks per executor (200)")
     args = parser.parse_args(argv)
     from minetwin.ray_executor import RayExecutor
     from minetwin.testing.ray_cluster import LocalRayCluster
 
-    design = design_of(args.runs)
+    design = design_of(args.runs, args.seconds)
     pile = Path(tempfile.mkdtemp(prefix="bench_batch_pile_"))
     result = {"design": {"runs": args.runs, "run_duration_s": design.runs[0].duration,
                          "particles": design.piles[0].particles},

@@ -195,6 +195,20 @@ class _Done:
         self.result, self.error = result, error
 
 
+def _start_method():
+    """How the pool starts its workers: forked, with this process's modules and compiled
+    kernels already loaded, unless this process runs numba's OpenMP threads (the
+    threading layer where TBB's library cannot be loaded): GNU OpenMP aborts a forked
+    child ("fork() called from a process already using GNU OpenMP"), so the workers
+    then come from a fork server, a fresh process."""
+    import multiprocessing
+
+    from numba.np.ufunc import parallel
+
+    uses_openmp = parallel._is_initialized and parallel._threading_layer == "omp"
+    return multiprocessing.get_context("forkserver" if uses_openmp else "fork")
+
+
 class LocalExecutor(Executor):
     """``workers`` processes of this machine (``concurrent.futures``); with one
     worker the tasks run in this process, one after the other."""
@@ -208,7 +222,7 @@ class LocalExecutor(Executor):
     def _ensure_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
             self._pool = ProcessPoolExecutor(max_workers=self.workers, initializer=_keep_common,
-                                             initargs=(self.common,))
+                                             initargs=(self.common,), mp_context=_start_method())
         return self._pool
 
     def share(self, common):

@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -93,3 +94,33 @@ def test_sweep_refuses_bad_options_with_exit_code_2(tmp_path, options, field):
                           env={**os.environ, "MINETWIN_RAY_ADDRESS": ""})
     assert done.returncode == 2, done.stderr
     assert field in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_local_pool_works_after_this_process_ran_numbas_parallel_threads(tmp_path):
+    """Where TBB's library cannot be loaded numba runs its parallel loops on GNU
+    OpenMP, which aborts a forked child ("fork() called from a process already using
+    GNU OpenMP"); the pool then starts its workers from a fork server. Run in a fresh
+    process, as a DEM design's driver would be after building its piles."""
+    script = tmp_path / "driver.py"
+    script.write_text(
+        "import numba, numpy as np\n"
+        "from cosim import batch\n"
+        "@numba.njit(parallel=True)\n"
+        "def total(a):\n"
+        "    s = 0.0\n"
+        "    for i in numba.prange(a.size):\n"
+        "        s += a[i]\n"
+        "    return s\n"
+        "def task(k):\n"
+        "    return {'k': k, 'total': float(total(np.ones(1000)))}\n"
+        "if __name__ == '__main__':\n"
+        "    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)\n"
+        "    total(np.ones(100_000))\n"
+        "    with batch.LocalExecutor(2) as executor:\n"
+        "        records = batch.run_batch([batch.Task(f't{k}', task, {'k': k})\n"
+        "                                   for k in range(4)], executor, progress=False)\n"
+        "    print(numba.threading_layer(), [r['status'] for r in records])\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=300, cwd=Path(__file__).resolve().parents[1])
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split(" ", 1)[1].strip() == str(["done"] * 4), done.stdout
