@@ -30,16 +30,7 @@ import numpy as np
 from cosim import jsonio
 from surrogate.dem import Dem, DemConfig
 from surrogate.dem.builders import config_for_particles, packed_pile, settle
-
-
-def overlaps(dem: Dem):
-    i = np.repeat(np.arange(dem.n), np.diff(dem.start))
-    j = dem.nbr
-    delta = dem.radius[i] + dem.radius[j] - np.hypot(*(dem.pos[i] - dem.pos[j]).T)
-    ratio = delta / (2 * np.minimum(dem.radius[i], dem.radius[j]))
-    touching = ratio[ratio > 0]
-    return (float(touching.mean()) if touching.size else 0.0,
-            float(touching.max()) if touching.size else 0.0)
+from surrogate.dem.method_study import overlap_stats
 
 
 def run(path: Path, method: str, factor: float, seconds: float, rate: float,
@@ -56,7 +47,7 @@ def run(path: Path, method: str, factor: float, seconds: float, rate: float,
     tic = time.perf_counter()
     dem.advance(seconds)
     wall = time.perf_counter() - tic
-    mean, worst = overlaps(dem)
+    mean, worst = overlap_stats(dem)
     stats = dem.solver_stats
     return {"method": method, "dt_s": dem.dt, "wall_s_per_simulated_s": wall / seconds,
             "discharged_kg": float(dem.discharged()["mass"].sum()),
