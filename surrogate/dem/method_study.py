@@ -63,6 +63,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cosim import numerics
 from surrogate.dem.analysis import angle_of_repose
 from surrogate.dem.builders import config_for_particles, packed_pile, settle
 from surrogate.dem.config import DemConfig
@@ -164,7 +165,8 @@ def build_funnel(size: StudySize, stiffness: float, seed: int = 0) -> Dem:
     xs = np.arange(-half + pitch / 2, half - pitch / 2, pitch)
     ys = np.arange(FUNNEL_FLOOR_Y + pitch / 2, FUNNEL_FLOOR_Y + size.funnel_fill, pitch)
     grid = np.array([(x, y) for y in ys for x in xs])
-    diameters = np.cbrt(rng.uniform(cfg.diameter_min ** 3, cfg.diameter_max ** 3, len(grid)))
+    diameters = numerics.cbrt(rng.uniform(cfg.diameter_min ** 3, cfg.diameter_max ** 3,
+                                          len(grid)))
     dem = Dem(cfg, seed=seed)
     band = np.floor(grid[:, 1] - FUNNEL_FLOOR_Y).astype(np.int64)
     dem.place(grid, cfg.sphere_mass(diameters), 0.5, 1.0, _f16(), band)

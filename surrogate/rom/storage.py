@@ -186,7 +186,8 @@ class RomStorage(StorageModel):
     checkpointable = True
 
     def __init__(self, model=None, *, update_interval: float = 1.0, max_step: float = 1.0,
-                 move_interval: float = doe.CONTROL_STEP, inflow_window: float = 30.0, rng: np.random.Generator | None = None,
+                 move_interval: float = doe.CONTROL_STEP, inflow_window: float = 30.0,
+                 rng: np.random.Generator | None = None,
                  fallback: str | None = None, fallback_config=None, surface: str = "dem",
                  surface_config=None, surface_dt_safety_factor: float | None = None):
         super().__init__(rng=rng)
