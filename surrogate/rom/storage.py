@@ -403,8 +403,6 @@ class RomStorage(StorageModel):
         if dispersion:
             disperse(position, field, grid, self.model.dispersivity, h, self.rng,
                      c.x_min, c.x_max, c.floor)
-        if position is self._pos:
-            self._bulk_in_store = False
         return settle(c, self._width, position, mass, hint=hint)
 
     def _nearest_first(self, position, count_hint: int) -> np.ndarray:
@@ -455,7 +453,7 @@ class RomStorage(StorageModel):
             if self._unmoved >= self.move_interval - 1e-9:
                 self._order = self._move(self._refresh_field(t + k * h, rate), self._unmoved,
                                          self._pos, self._mass, hint=self._order)
-                self._unmoved = 0.0
+                self._unmoved, self._bulk_in_store = 0.0, False
             self._credit_kg += rate * h
             taken, self._credit_kg = self._take(self._pos, self._mass, self._credit_kg)
             if taken.size:
