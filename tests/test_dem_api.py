@@ -2,6 +2,7 @@
 ``dem`` storage model and the ``minetwin dem`` commands (issue 5)."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -142,11 +143,14 @@ def test_cli_pile_then_discharge_writes_summary_and_pictures(tmp_path, capsys):
     assert main(["dem", "pile", "--particles", "60", "--out", str(pile),
                  "--settle-time", "2"]) == 0
     # progress in a log: plain lines, the compile notice first, and a last line at the
-    # run's end (100 %, with its wall time), also when the pile settled before 2 s
+    # run's end (100 %, with its wall time), also when the pile settled before 2 s. The
+    # remaining-time field is not checked: tqdm prints "?" there when the run took under
+    # its first rate sample (kernels already cached, a fast CPU), "00:00" otherwise.
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if line.startswith("dem pile: ")]
     assert "\r" not in err and "compile the DEM kernels" in lines[0]
-    assert "100%|##########|" in lines[-1] and "<00:00" in lines[-1]
+    assert "100%|##########|" in lines[-1]
+    assert re.search(r"\[\d\d:\d\d<", lines[-1]), lines[-1]
     summary = json.loads((pile / "summary.json").read_text())
     assert summary["particles"] == 60
     for key in ("dt_s", "steps", "wall_s", "particle_steps_per_s", "angle_of_repose_deg",
