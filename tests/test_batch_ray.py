@@ -112,9 +112,25 @@ def test_a_dem_design_on_ray_with_a_killed_worker_equals_the_local_one(cluster, 
     _assert_same_arrays(_arrays(local / "states"), _arrays(remote / "states"))
 
 
-def _children(pid: int) -> list[int]:
+def _command_line(pid: int) -> bytes:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:  # it has ended
+        return b""
+
+
+def _pool_workers(pid: int) -> list[int]:
+    """The sweep's forked pool workers: children that run the sweep's own command line.
+    Other children come and go (a loaded run once killed ``ldconfig -p``, which
+    ``ctypes.util.find_library`` runs, instead of a worker); a child between fork and
+    exec still shows the parent's command line, so a candidate must keep it a while."""
     children = Path(f"/proc/{pid}/task/{pid}/children")
-    return [int(c) for c in children.read_text().split()] if children.exists() else []
+    if not children.exists():
+        return []
+    own = _command_line(pid)
+    candidates = [int(c) for c in children.read_text().split() if _command_line(int(c)) == own]
+    time.sleep(0.1)
+    return [c for c in candidates if _command_line(c) == own]
 
 
 def _sweep(out: Path, *options: str, wait_for_one: bool = False,
@@ -130,7 +146,7 @@ def _sweep(out: Path, *options: str, wait_for_one: bool = False,
         os.killpg(process.pid, signal.SIGINT)
     if kill_a_worker:  # SIGKILL one process of the local pool while the runs are under way
         # at once: on an idle machine the runs may all end within the 2 s this waited
-        while not (workers := _children(process.pid)) and time.monotonic() < deadline:
+        while not (workers := _pool_workers(process.pid)) and time.monotonic() < deadline:
             time.sleep(0.05)
         assert workers, "the sweep started no worker process"
         os.kill(workers[0], signal.SIGKILL)
