@@ -30,7 +30,6 @@ import numpy as np
 from cosim import jsonio
 from surrogate.dem import Dem, DemConfig
 from surrogate.dem.builders import config_for_particles, packed_pile, settle
-from surrogate.dem.method_study import overlap_stats
 
 
 def run(path: Path, method: str, factor: float, seconds: float, rate: float,
@@ -47,7 +46,7 @@ def run(path: Path, method: str, factor: float, seconds: float, rate: float,
     tic = time.perf_counter()
     dem.advance(seconds)
     wall = time.perf_counter() - tic
-    mean, worst = overlap_stats(dem)
+    mean, worst = dem.overlap_stats()
     stats = dem.solver_stats
     return {"method": method, "dt_s": dem.dt, "wall_s_per_simulated_s": wall / seconds,
             "discharged_kg": float(dem.discharged()["mass"].sum()),

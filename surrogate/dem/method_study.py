@@ -213,20 +213,6 @@ def build_start_states(size: StudySize, folder: Path, executor, seed: int = 0) -
 
 
 # ------------------------------------------------------------------ runs
-def overlap_stats(dem: Dem) -> tuple[float, float]:
-    """Mean and largest disk-disk overlap over the smaller diameter [-] of the
-    touching pairs."""
-    if dem._dirty and dem.n:
-        dem._rebuild()
-    i = np.repeat(np.arange(dem.n), np.diff(dem.start))
-    j = dem.nbr
-    delta = dem.radius[i] + dem.radius[j] - np.hypot(*(dem.pos[i] - dem.pos[j]).T)
-    ratio = delta / (2 * np.minimum(dem.radius[i], dem.radius[j]))
-    touching = ratio[ratio > 0]
-    return (float(touching.mean()) if touching.size else 0.0,
-            float(touching.max()) if touching.size else 0.0)
-
-
 def _leaked(dem: Dem, scene: str, size: StudySize) -> str | None:
     if dem.n == 0:
         return None
@@ -305,7 +291,7 @@ def run_method(start: str, scene: str, stiffness: str, method: str, size: StudyS
                 failure = {"kind": "leaked", "what": "leak", "time_s": dem.time - t0,
                            "reason": leak}
     simulated = dem.time - t0
-    mean_ov, max_ov = overlap_stats(dem) if dem.n else (0.0, 0.0)
+    mean_ov, max_ov = dem.overlap_stats()
     row = {"scene": scene, "stiffness": stiffness, "normal_stiffness_N_m": dem.cfg.normal_stiffness,
            "method": method, "dt_s": dem.dt, "stable_dt_s": dem.stable_dt,
            "dt_over_stable": dem.dt / dem.stable_dt if method == "explicit" else None,

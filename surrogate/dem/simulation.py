@@ -591,6 +591,21 @@ class Dem:
             self._rebuild()
         return float(kernels.max_overlap_ratio(self.pos, self.radius, self.start, self.nbr))
 
+    def overlap_stats(self) -> tuple[float, float]:
+        """Mean and largest disk-disk overlap over the smaller diameter [-] of the
+        touching pairs (0, 0 without any)."""
+        if not self.n:
+            return 0.0, 0.0
+        if self._dirty:
+            self._rebuild()
+        i = np.repeat(np.arange(self.n), np.diff(self.start))
+        j = self.nbr
+        delta = self.radius[i] + self.radius[j] - np.hypot(*(self.pos[i] - self.pos[j]).T)
+        ratio = delta / (2 * np.minimum(self.radius[i], self.radius[j]))
+        touching = ratio[ratio > 0]
+        return (float(touching.mean()) if touching.size else 0.0,
+                float(touching.max()) if touching.size else 0.0)
+
     def mass_balance_error(self) -> float:
         """|emitted - held - discharged| / emitted [-] (0 when nothing entered)."""
         if self.emitted_mass == 0:
