@@ -52,6 +52,7 @@ variables' types) or float64.
 from __future__ import annotations
 
 import functools
+import math
 import sys
 import time as wallclock
 from dataclasses import dataclass
@@ -100,6 +101,9 @@ class Component:
     """Where particles may enter (``connect_flow`` targets); empty: none."""
     outlets: tuple[str, ...] = ()
     """Where particles may leave (``connect_flow`` sources); empty: none."""
+    limits_step: bool = False
+    """Whether ``step_limit`` bounds an adaptive master's step (a component that
+    implements it declares this True)."""
 
     def __init__(self):
         self.inputs: dict[str, object] = {}
@@ -121,6 +125,12 @@ class Component:
 
     def finish(self) -> None:
         pass
+
+    def step_limit(self) -> float:
+        """The largest communication step [s] that resolves this component's own
+        dynamics in its present state (an adaptive master keeps its step within it
+        when ``limits_step`` is declared; default: no limit)."""
+        return np.inf
 
     def check_input_type(self, name: str, source_type: str, source: str) -> None:
         """Refuse a connection from an output of FMI type ``source_type`` that input
@@ -189,22 +199,128 @@ class Connection:
     input: str
 
 
+def ladder_exponent(limit: float, step: float) -> int | None:
+    """k with ``limit == step * 2**k`` (to 1e-9 in k), or None when ``limit`` is not
+    on the ladder of ``step``."""
+    exponent = math.log2(limit / step)
+    return int(round(exponent)) if abs(exponent - round(exponent)) <= 1e-9 else None
+
+
+class AdaptiveStep:
+    """Communication step control during a run, from the declared signals' zero-order-hold error.
+
+    The master holds every signal constant over a communication step H (zero-order
+    hold), so a signal y that changes over the step is passed on with the error of
+    that hold: to first order |y(t + H) - y(t)| (Kübler and Schiehlen 2000; Arnold,
+    Clauß and Schierz 2013, cited in ``cosim.analyses.coupling_step``). The estimate
+    used here is the difference between the constant (held) and the linear
+    extrapolation of the signal's history at the end of the next step, i.e. the
+    comparison of two extrapolation polynomials of consecutive order of Schierz,
+    Arnold and Clauß 2012 ("Co-simulation with communication step size control in
+    an FMI compatible master algorithm", Proc. 9th Int. Modelica Conf., sec. 3):
+
+        e = |y_n - y_(n-1)| / H_n * H / scale
+
+    after the step H_n that ended at y_n, for the next step H, relative to the
+    signal's scale (the largest |y| seen so far, at least ``scale_floor``); the
+    largest over the declared signals is controlled. It needs no rollback: the
+    particle assets share one particle store, draw from one random generator and
+    write events, so a step cannot be repeated from a saved state (FMUs alone could:
+    ours declare canGetAndSetFMUstate), and step doubling within the run is not
+    possible; estimates from output history only are the methods for subsystems
+    without rollback ("Error estimation and step size control with minimal
+    subsystem interfaces", arXiv:2406.17353, 2024). A step whose estimate exceeds
+    the tolerance is therefore not repeated: the next one is shortened.
+
+    A signal shows the coupling error, not an asset's own discretization: an
+    asset whose state needs a step no longer than some time scale says so in
+    ``Component.step_limit`` (the jaw crusher: its zone's capacity over the jaw's
+    throughput while it holds material, else its throughput is capped by the step),
+    and the step stays within the smallest limit of the components.
+
+    The step follows the elementary controller for an error proportional to H
+    (Hairer, Nørsett and Wanner, "Solving ODEs I", sec. II.4):
+    ``H_new = H * safety * tolerance / e``, limited to [H / 2^k, 2 H] per change,
+    rounded down to the ladder ``step * 2^j`` within [``min_step``, ``max_step``],
+    and grown only at a time that is a multiple of the larger step (the steps of a
+    run then land on one grid and the recording times are hit exactly). The estimate
+    is of the hold error over one step; a window mean's coupling error averages such
+    errors and is then usually smaller, but this is not a proven bound: it is checked
+    against a fine-step run (``tests/test_adaptive_step.py``, ``examples/
+    adaptive_step.py``).
+
+    Parameters
+    ----------
+    signals : list of str
+        Declared signals ``component.output`` (``simulation.coupling_signals``).
+    tolerance : float
+        Largest relative coupling error [-] (``simulation.coupling_tolerance``), in (0, 1].
+    min_step, max_step : float
+        Limits of the step [s] (``simulation.step_min_s`` [0.125],
+        ``simulation.step_max_s`` [2]); each the initial step times a power of two.
+    safety : float
+        Safety factor [-] on the tolerance, default 0.8 (Hairer et al.: 0.8-0.9).
+    scale_floor : float
+        Smallest scale of a signal [signal's unit], default 1e-9 (a signal at rest at 0).
+    """
+
+    def __init__(self, signals, tolerance: float, min_step: float, max_step: float, *,
+                 safety: float = 0.8, scale_floor: float = 1e-9):
+        if not signals:
+            raise ValidationError("coupling_signals", "one or more component.output names "
+                                  "for an adaptive step", "none declared")
+        if not (np.isfinite(tolerance) and 0.0 < tolerance <= 1.0):
+            raise ValidationError("coupling_tolerance", "in (0, 1] for an adaptive step",
+                                  f"got {tolerance!r}")
+        if not (np.isfinite(min_step) and np.isfinite(max_step) and 0 < min_step <= max_step):
+            raise ValidationError("step_min_s", f"finite, > 0 and <= step_max_s {max_step!r} s",
+                                  f"got {min_step!r}")
+        if not 0.0 < safety <= 1.0:
+            raise ValidationError("safety", "in (0, 1]", f"got {safety!r}")
+        self.signals = [tuple(s.split(".", 1)) for s in signals]
+        self.names = list(signals)
+        self.tolerance = float(tolerance)
+        self.min_step = float(min_step)
+        self.max_step = float(max_step)
+        self.safety = float(safety)
+        self.scale_floor = float(scale_floor)
+
+    def ladder(self, step: float) -> tuple[int, int]:
+        """(exponent of ``min_step`` below ``step``, of ``max_step`` above it): both must
+        be whole, i.e. the limits the initial step times powers of two."""
+        exponents = []
+        for field, limit in (("step_min_s", self.min_step), ("step_max_s", self.max_step)):
+            exponent = ladder_exponent(limit, step)
+            if exponent is None:
+                raise ValidationError(field, f"step_s {step:g} s times a power of two "
+                                      "(..., 1/4, 1/2, 1, 2, 4, ...)", f"got {limit:g} s")
+            exponents.append(exponent)
+        if not exponents[0] <= 0 <= exponents[1]:
+            raise ValidationError("step_s", f"within [step_min_s {self.min_step:g}, "
+                                  f"step_max_s {self.max_step:g}] s", f"got {step:g} s")
+        return exponents[0], exponents[1]
+
+
 class Master:
-    """Fixed-step co-simulation master.
+    """Co-simulation master with a fixed or an adaptive communication step.
 
     Parameters
     ----------
     step : float
-        Communication step [s], default 0.5.
+        Communication step [s], default 0.5 (the initial step of an adaptive run).
     record_every : int
-        Record outputs every this many steps (default 1: every step).
+        Record outputs every this many steps (default 1: every step); an adaptive
+        run records at every multiple of ``record_every * step`` seconds it reaches.
     progress : bool or str
         Report progress on stderr during ``run`` (``cosim.progress``), default
         True; a string is the label of the progress lines (default "simulate").
+    adaptive : AdaptiveStep or None
+        Adapt the step during the run (default None: the fixed ``step``); each change
+        is logged in ``step_changes``.
     """
 
     def __init__(self, step: float = 0.5, *, record_every: int = 1,
-                 progress: bool | str = True):
+                 progress: bool | str = True, adaptive: AdaptiveStep | None = None):
         if not (np.isfinite(step) and step > 0):
             raise ValidationError("step", "finite and > 0 s", f"got {step!r}")
         if int(record_every) < 1:
@@ -222,6 +338,21 @@ class Master:
         self.wall_s = 0.0
         self.stopped: dict | None = None
         """None, or {"component", "time", "reason"} of the stop request that ended the run."""
+        self.adaptive = adaptive
+        self.step_changes: list[dict] = []
+        """Adaptive runs: {"time", "from_s", "to_s", "estimate", "signal"} per change."""
+        if adaptive is not None:
+            low, high = adaptive.ladder(self.step)
+            self._levels = high - low              # steps min_step * 2^level, level 0..this
+            self._level = -low                      # the initial step's
+            self._ticks = 0                         # time in units of min_step
+            self._record_interval = self.record_every * self.step
+            self._next_record = self._record_interval
+            self._step_sum = 0.0
+            self._step_min = np.inf
+            self._step_max = 0.0
+            self._history = None                    # declared signals at the last point
+            self._scale = None                      # their largest |value| so far
 
     def add(self, component: Component) -> Component:
         """Add a component; names must be unique."""
@@ -313,28 +444,12 @@ class Master:
                   for c in self.components]
         record = self._recorder.record
         try:
+            if self.adaptive is not None:
+                self._run_adaptive(until, inputs, latest, report)
+                return self
             for k in range(first, first + n_steps):
                 t = k * self.step
-                stops = None
-                for component, connections in inputs:
-                    for name, source, output, source_name in connections:
-                        try:
-                            value = latest[source][output]
-                        except KeyError:
-                            raise ValidationError(
-                                "output", f"an output of {source_name}",
-                                f"{output!r} not in {sorted(latest[source])}") from None
-                        component.set_input(name, value)
-                    try:
-                        component.step(t, self.step)
-                    except Exception as exc:
-                        if isinstance(exc, CosimulationError) and not exc.blames_component:
-                            raise
-                        raise CosimulationError(
-                            f"{component.name} failed at t = {t:g} s: {exc}") from exc
-                    latest[id(component)] = component.outputs()
-                    if component.stop_request is not None:
-                        stops = (stops or []) + [component]
+                stops = self._advance(inputs, latest, t, self.step)
                 self._steps_done = k + 1
                 self.time = self._steps_done * self.step
                 if stops:
@@ -349,6 +464,122 @@ class Master:
             if report is not None:
                 report.close()
         return self
+
+    def _advance(self, inputs, latest, t: float, dt: float):
+        """Step every component from ``t`` to ``t + dt`` [s] in order, each after its
+        inputs are set; the components that requested a stop (or None)."""
+        stops = None
+        for component, connections in inputs:
+            for name, source, output, source_name in connections:
+                try:
+                    value = latest[source][output]
+                except KeyError:
+                    raise ValidationError(
+                        "output", f"an output of {source_name}",
+                        f"{output!r} not in {sorted(latest[source])}") from None
+                component.set_input(name, value)
+            try:
+                component.step(t, dt)
+            except Exception as exc:
+                if isinstance(exc, CosimulationError) and not exc.blames_component:
+                    raise
+                raise CosimulationError(
+                    f"{component.name} failed at t = {t:g} s: {exc}") from exc
+            latest[id(component)] = component.outputs()
+            if component.stop_request is not None:
+                stops = (stops or []) + [component]
+        return stops
+
+    def _run_adaptive(self, until: float, inputs, latest, report) -> None:
+        """``run`` with the step of ``self.adaptive``: steps on the grid of its ladder
+        (a step grows only at a multiple of the larger step; the last one fits
+        ``until``), recorded at every multiple of the recording interval reached."""
+        control = self.adaptive
+        unit = control.min_step
+        end = int(round(until / unit))
+        by_name = {c.name: c for c in self.components}
+        for name, (component, output) in zip(control.names, control.signals):
+            if component not in by_name or output not in latest[id(by_name[component])]:
+                raise ValidationError("coupling_signals", "outputs of the run's components "
+                                      "(component.output)", f"{name!r} is not one")
+        ends = [(id(by_name[c]), output) for c, output in control.signals]
+        limited = [c for c in self.components if c.limits_step]
+        if self._history is None:
+            self._history = self._signals(latest, ends)
+            self._scale = [max(abs(v), control.scale_floor) for v in self._history]
+        record = self._recorder.record
+        while self._ticks < end:
+            size = 1 << self._level
+            while self._ticks % size or self._ticks + size > end:
+                size >>= 1
+            t, dt = self._ticks * unit, size * unit
+            stops = self._advance(inputs, latest, t, dt)
+            self._ticks += size
+            self._steps_done += 1
+            self.time = self._ticks * unit
+            self._step_sum += dt
+            self._step_min = min(self._step_min, dt)
+            self._step_max = max(self._step_max, dt)
+            if stops:
+                self._stop(stops, t, latest)
+                break
+            if self.time >= self._next_record - 1e-9 * unit:
+                record(self.time, self.components, latest)
+                self._next_record = (np.floor(self.time / self._record_interval + 1e-9) + 1) \
+                    * self._record_interval
+            self._control(self._signals(latest, ends), dt, limited)
+            if report is not None:
+                report.update(self.time)
+
+    @staticmethod
+    def _signals(latest, ends) -> list[float]:
+        """The declared signals' values (not finite: 0); plain floats, as the control
+        runs every step on a few values."""
+        values = [float(latest[component][output]) for component, output in ends]
+        return [v if math.isfinite(v) else 0.0 for v in values]
+
+    def _control(self, values: list[float], dt: float, limited) -> None:
+        """Choose the next step from the change of the declared signals over the step
+        ``dt`` [s] just taken and the ``step_limit`` of the components in ``limited``
+        (``AdaptiveStep``); log a change."""
+        control = self.adaptive
+        scale = self._scale = [max(s, abs(v)) for s, v in zip(self._scale, values)]
+        change = [abs(v - h) / s for v, h, s in zip(values, self._history, scale)]  # [-]
+        self._history = values
+        worst = max(range(len(change)), key=change.__getitem__)
+        rate = change[worst] / dt                        # [1/s]
+        level = self._level + 1
+        if rate > 0:
+            wanted = control.safety * control.tolerance / rate / control.min_step
+            level = math.floor(math.log2(wanted)) if wanted >= 1.0 else 0
+        if limited:
+            limit = min(component.step_limit() for component in limited)
+            if limit < math.inf:
+                level = min(level, math.floor(math.log2(limit / control.min_step))
+                            if limit >= control.min_step else 0)
+        level = max(0, min(level, self._level + 1, self._levels))
+        if level != self._level:
+            self.step_changes.append({
+                "time": self.time, "from_s": control.min_step * (1 << self._level),
+                "to_s": control.min_step * (1 << level), "estimate": change[worst],
+                "signal": control.names[worst]})
+            self._level = level
+
+    def step_statistics(self) -> dict:
+        """The communication steps of the run so far: mode, count, min, max, mean [s];
+        an adaptive run adds its tolerance, signals, limits and number of changes."""
+        if self.adaptive is None:
+            return {"mode": "fixed", "count": self._steps_done, "min_s": self.step,
+                    "max_s": self.step, "mean_s": self.step}
+        control = self.adaptive
+        count = self._steps_done
+        return {"mode": "adaptive", "count": count,
+                "min_s": float(self._step_min) if count else None,
+                "max_s": float(self._step_max) if count else None,
+                "mean_s": self._step_sum / count if count else None,
+                "tolerance": control.tolerance, "signals": control.names,
+                "step_min_s": control.min_step, "step_max_s": control.max_step,
+                "safety": control.safety, "changes": len(self.step_changes)}
 
     def _stop(self, components, t: float, latest) -> None:
         """End the run at the earliest requested stop time within the step [t, t + step]."""

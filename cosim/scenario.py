@@ -32,9 +32,12 @@ record_every_s [= step_s], seed [1], sensor_window_s [30],
 event_store_timeout_s [30]: how long a write waits for another process that
 holds the event store's lock; coupling_tolerance [none] and coupling_signals
 [[]]: the relative coupling error the declared signals' window means may carry,
-for which `minetwin coupling-step` finds the largest step by step doubling (a
-run itself keeps step_s). The communication step 0.5 s resolves the
-fastest material dynamics of the paper's plant: a particle stays about 1 s in
+for which `minetwin coupling-step` finds the largest step by step doubling;
+communication_step ["fixed"]: "adaptive" adapts the step during the run within
+[step_min_s [0.125], step_max_s [2]] s, each step_s times a power of two, to keep
+the declared signals within coupling_tolerance (``cosim.master.AdaptiveStep``;
+record_every_s then a whole multiple of step_max_s). The communication step
+0.5 s resolves the fastest material dynamics of the paper's plant: a particle stays about 1 s in
 the crusher zone (785 kg at 1 t/s) and the trucks dump every 27.5 s; the
 FMUs' physics (crusher torque, mill speed with a 5 s time constant, mill
 breakage with an exponential integrator) is smooth over it.
@@ -59,7 +62,7 @@ from pydantic_core import PydanticCustomError
 
 from cosim import jsonio
 from cosim.errors import ValidationError, raise_all
-from cosim.params import Parameters, Text, check, number, refuse
+from cosim.params import Parameters, Text, check, choice, number, refuse
 
 WALL_CLOCK_FIELDS = ("wall_s", "realtime_factor")
 """Summary fields that depend on the machine, not on the scenario and seed."""
@@ -79,6 +82,14 @@ class SimulationParameters(Parameters):
     coupling-step``, ``cosim.analyses.coupling_step``) [-]; default: none declared."""
     coupling_signals: list[Text] = []
     """The signals (``component.output``) the coupling tolerance applies to."""
+    communication_step: choice("fixed", "adaptive") = "fixed"
+    """"fixed": every step is step_s; "adaptive": the master adapts the step during the
+    run to keep the declared signals' coupling error within coupling_tolerance
+    (``cosim.master.AdaptiveStep``), starting from step_s."""
+    step_min_s: number(1e-3, 5.0, unit="s") = 0.125
+    """Smallest adaptive step [s]: step_s divided by a power of two."""
+    step_max_s: number(1e-3, 60.0, unit="s") = 2.0
+    """Largest adaptive step [s]: step_s times a power of two."""
 
     @model_validator(mode="after")
     def _complete(self):
@@ -87,6 +98,28 @@ class SimulationParameters(Parameters):
         if self.record_every_s < self.step_s:
             raise refuse("record_every_s", f"finite and >= {self.step_s:g} and <= 3600 s "
                          "(step_s)", f"got {self.record_every_s!r}")
+        if self.communication_step == "adaptive":
+            if self.coupling_tolerance is None:
+                raise refuse("coupling_tolerance", "in (0, 1] for communication_step = "
+                             "\"adaptive\"", "none declared")
+            if not self.coupling_signals:
+                raise refuse("coupling_signals", "one or more component.output names for "
+                             "communication_step = \"adaptive\"", "none declared")
+            from cosim.master import ladder_exponent
+
+            for key, limit, side, example in (
+                    ("step_min_s", self.step_min_s, "<=", self.step_s / 4),
+                    ("step_max_s", self.step_max_s, ">=", self.step_s * 4)):
+                exponent = ladder_exponent(limit, self.step_s)
+                if exponent is None or (exponent > 0 if side == "<=" else exponent < 0):
+                    raise refuse(key, f"step_s {self.step_s:g} s times a power of two, "
+                                 f"{side} step_s (e.g. {example:g} s)", f"got {limit!r}")
+            ratio = self.record_every_s / self.step_max_s
+            if abs(ratio - round(ratio)) > 1e-9 or ratio < 1:
+                # every recording time is then a step's end, however the step varies
+                raise refuse("record_every_s", f"a whole multiple of step_max_s "
+                             f"{self.step_max_s:g} s for communication_step = \"adaptive\"",
+                             f"got {self.record_every_s!r}")
         return self
 
 
@@ -305,7 +338,7 @@ def build(config: dict, *, seed: int | None = None, storage_model: str | None = 
     from cosim.assets import Plant, PlantBalance
     from cosim.events import EventStore
     from cosim.kinds import BuildContext
-    from cosim.master import Master
+    from cosim.master import AdaptiveStep, Master
     from cosim.particles import ParticleStore
 
     cfg = copy.deepcopy(config)
@@ -321,9 +354,12 @@ def build(config: dict, *, seed: int | None = None, storage_model: str | None = 
     events = (EventStore(events_path, timeout=sim["event_store_timeout_s"])
               if events_path is not None else None)
     plant = Plant(ParticleStore(capacity=4096), events, rng)
+    adaptive = (AdaptiveStep(sim["coupling_signals"], sim["coupling_tolerance"],
+                             sim["step_min_s"], sim["step_max_s"])
+                if sim["communication_step"] == "adaptive" else None)
     master = Master(step=sim["step_s"], record_every=max(int(round(sim["record_every_s"]
                                                                    / sim["step_s"])), 1),
-                    progress=progress)
+                    progress=progress, adaptive=adaptive)
     context = BuildContext(plant=plant, master=master, simulation=sim, spec=spec)
     for name, (kind, parameters) in spec.assets.items():
         context.built[name] = kind.build(name, parameters, context)
@@ -377,6 +413,7 @@ def summarize(simulation: Simulation) -> dict:
                      for name in assets_of_kind(simulation.config, "stockpile")
                      if simulation.assets[name].fidelity is not None},
         "step_s": float(master.step),
+        "communication_steps": master.step_statistics(),  # count, min, max, mean [s]
         "particles_created": int(plant.particles_created),
         "particles_in_plant": int(len(plant.particles)),
         "particles_out": int(removed.size),

@@ -53,6 +53,13 @@ def window_means(series: pd.DataFrame, signal: str, window_s: float,
         return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
 
 
+def signal_scale(finest_means: np.ndarray) -> float:
+    """A signal's scale: the largest window mean's magnitude in the finest run
+    (1 for a signal that stays at 0, so that its errors are absolute)."""
+    scale = float(np.nanmax(np.abs(finest_means))) if np.isfinite(finest_means).any() else 0.0
+    return scale if scale > 0 else 1.0
+
+
 def check_ladder(steps, field: str = "steps") -> list[float]:
     """``steps`` [s] sorted, or a ``ValidationError`` unless they are at least two and
     each the double of the one before (H, 2H, 4H, ...)."""
@@ -88,9 +95,7 @@ def coupling_errors(runs: dict[float, pd.DataFrame], signals: list[str], *,
     for k, h in enumerate(steps):
         row = {}
         for s in signals:
-            scale = float(np.nanmax(np.abs(means[finest][s]))) if np.isfinite(
-                means[finest][s]).any() else 0.0
-            scale = scale if scale > 0 else 1.0
+            scale = signal_scale(means[finest][s])
 
             def gap(coarse, fine):
                 return float(np.nanmax(np.abs(means[coarse][s] - means[fine][s]))) / scale
@@ -104,6 +109,25 @@ def coupling_errors(runs: dict[float, pd.DataFrame], signals: list[str], *,
                       "order": order}
         table[h] = row
     return table
+
+
+def errors_against(reference: pd.DataFrame, run: pd.DataFrame, signals: list[str], *,
+                   window_s: float, until: float) -> dict[str, float]:
+    """Per declared signal: the largest difference of ``run``'s window means from
+    ``reference``'s, relative to the signal's scale in the reference (as
+    ``coupling_errors``' ``against_finest``); for a run at another step scheme (an
+    adaptive step) against a fine-step reference."""
+    errors = {}
+    for signal in signals:
+        for frame in (reference, run):
+            if signal not in frame:
+                raise ValidationError("signals", "signals recorded in the time series",
+                                      f"{signal!r} is not recorded")
+        fine = window_means(reference, signal, window_s, until)
+        scale = signal_scale(fine)
+        errors[signal] = float(np.nanmax(np.abs(window_means(run, signal, window_s, until)
+                                                - fine))) / scale
+    return errors
 
 
 def largest_step_within(table: dict, tolerance: float) -> float | None:

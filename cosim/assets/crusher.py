@@ -73,6 +73,7 @@ class JawCrusher(Asset):
 
     input_names = ("fragmentation_map", "discharge_enabled")
     outlets = ("product",)
+    limits_step = True
     output_names = ("zone_hardness_mass", "zone_mass_kg", "hopper_mass_kg", "passed_kg",
                     *(f"zone_{key}" for key in AssetSensors.names))
 
@@ -155,6 +156,14 @@ class JawCrusher(Asset):
         store.position[slots] = self.zone_location
         self.plant.record("enter", self.zone_name, t, slots, self.zone_location)
         self._zone = np.concatenate((self._zone, entering))
+
+    def step_limit(self) -> float:
+        """While the hopper or the zone holds material: the zone's capacity over the
+        jaw's throughput [s] (a longer step passes at most one zone's mass, so it caps
+        the throughput; ``Master`` with an adaptive step); else no limit."""
+        if self._zone.size or self._hopper.size:
+            return self.zone_capacity / self.jaw_throughput
+        return np.inf
 
     def outputs(self) -> dict[str, object]:
         store = self.particles

@@ -77,6 +77,7 @@ class HaulTruck(Asset):
 
     inlets = ()
     outlets = ("dump",)
+    limits_step = True
     output_names = ("x", "y", "payload_kg", "loads")
 
     def __init__(self, name: str, plant: Plant, *, route, dump_point, payload: float = 15000.0,
@@ -108,14 +109,30 @@ class HaulTruck(Asset):
         self._held = np.empty(0, dtype=np.uint64)
         self.loads = 0
         self.dumps = 0
+        self._time = None  # end of the last step [s]
 
     @property
     def cycle_time(self) -> float:
         """Time for one pass over the route [s]."""
         return float(sum(stage.duration for stage in self._stages))
 
+    def step_limit(self) -> float:
+        """Time [s] from the end of the last step to the end of the next dump (an
+        adaptive master's steps then shrink towards it, so a load reaches the crusher
+        in a short step, not at the start of a long one); no limit before a step."""
+        if self._time is None:
+            return np.inf
+        end, index = self._stage_end, self._index
+        for _ in range(len(self._stages)):
+            if self._stages[index].kind == "dump":
+                return max(end - self._time, 0.0)
+            index = (index + 1) % len(self._stages)
+            end += self._stages[index].duration
+        return np.inf
+
     def step(self, t: float, dt: float) -> None:
         t_end = t + dt
+        self._time = t_end
         while self._stage_end <= t_end:
             self._finish_stage(self._stages[self._index], self._stage_end)
             self._index = (self._index + 1) % len(self._stages)

@@ -5,6 +5,9 @@ batch of runs into ``DIR/runs/<key>`` (skipped when already done), estimates eac
 declared signal's coupling error at every step by step doubling
 (``cosim.analyses.coupling_step``), and picks the largest step within the
 tolerance. Writes ``DIR/coupling_step.json`` and ``DIR/coupling_step.png``.
+With ``--adaptive`` it also runs the scenario with the step adapted during the run
+(``cosim.master.AdaptiveStep``) and reports its steps, its cost and its error
+against the finest run beside the fixed 0.5 s step's.
 """
 
 from __future__ import annotations
@@ -29,7 +32,8 @@ def register(subparsers) -> None:
                     "simulation.coupling_signals and simulation.coupling_tolerance. Writes "
                     "DIR/coupling_step.json and DIR/coupling_step.png; runs already in DIR "
                     "are skipped.")
-    parser.add_argument("scenario", type=Path, help="scenario TOML, e.g. examples/step_response.toml")
+    parser.add_argument("scenario", type=Path,
+                        help="scenario TOML, e.g. examples/step_response.toml")
     parser.add_argument("--steps", default=DEFAULT_STEPS, metavar="H1,H2,...",
                         help=f"communication steps [s], each twice the one before "
                              f"({DEFAULT_STEPS})")
@@ -43,6 +47,12 @@ def register(subparsers) -> None:
                         help="window of the means compared [s] (60)")
     parser.add_argument("--until", type=float, default=None, metavar="SECONDS",
                         help="simulated time of each run [s] (default: the scenario's)")
+    parser.add_argument("--adaptive", action="store_true",
+                        help="also run the scenario with the step adapted during the run "
+                             "(simulation.communication_step = \"adaptive\", from 0.5 s "
+                             "within the ladder's smallest and largest steps) and report its "
+                             "steps, wall time and error against the finest run beside the "
+                             "fixed 0.5 s step's")
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     executors.add_options(parser, workers=2)
     parser.set_defaults(handler=run)
@@ -101,6 +111,21 @@ def plan(args):
                                 {"config": config, "settings": {"simulation.step_s": step},
                                  "until": args.until, "scenario_name": args.scenario.stem},
                                 seed=int(config["simulation"]["seed"]), writes_folder=True))
+    if args.adaptive:
+        if 0.5 not in steps:
+            raise ValidationError("--steps", "a ladder holding 0.5 s with --adaptive (the "
+                                  "fixed step it is compared with)", f"got {args.steps!r}")
+        config = copy.deepcopy(base)
+        config.setdefault("simulation", {}).update(
+            step_s=0.5, communication_step="adaptive", step_min_s=steps[0],
+            step_max_s=steps[-1], record_every_s=steps[-1], coupling_signals=signals,
+            coupling_tolerance=float(tolerance))
+        config = validate(config)
+        tasks.append(batch.Task("adaptive step", run_point,
+                                {"config": config,
+                                 "settings": {"simulation.communication_step": "adaptive"},
+                                 "until": args.until, "scenario_name": args.scenario.stem},
+                                seed=int(config["simulation"]["seed"]), writes_folder=True))
     return steps, tasks, signals, float(tolerance)
 
 
@@ -121,6 +146,8 @@ def run(args) -> int:
               file=sys.stderr)
     if failed:
         return 1
+    adaptive_record = records[len(steps)] if len(records) > len(steps) else None
+    records = records[:len(steps)]
     runs = {h: pd.read_parquet(Path(r["folder"]) / "timeseries.parquet")
             for h, r in zip(steps, records)}
     until = min(float(r["value"]["simulated_s"]) for r in records)
@@ -136,6 +163,16 @@ def run(args) -> int:
               "chosen_step_s": chosen,
               "wall_ratio_fixed_0.5_s_to_chosen": (costs[reference_step] / costs[chosen]
                                                    if reference_step and chosen else None)}
+    if adaptive_record is not None:
+        value = adaptive_record["value"]
+        adaptive_run = pd.read_parquet(Path(adaptive_record["folder"]) / "timeseries.parquet")
+        result["adaptive"] = {
+            "steps": value["communication_steps"],
+            "wall_s_per_s": float(value["wall_s"]) / float(value["simulated_s"]),
+            "against_finest": coupling_step.errors_against(
+                runs[steps[0]], adaptive_run, signals, window_s=args.window, until=until),
+            "wall_ratio_fixed_0.5_s_to_adaptive": costs[0.5] / (float(value["wall_s"])
+                                                                / float(value["simulated_s"]))}
     jsonio.write(args.out / "coupling_step.json", result, indent=1)
     coupling_step.plot(table, costs, tolerance, chosen, args.out / "coupling_step.png",
                        run=run_label(records[0]["inputs"]["config"],
@@ -149,6 +186,16 @@ def run(args) -> int:
             estimate = "-" if row["estimate"] is None else f"{row['estimate']:.4f}"
             cells.append(f"{estimate} / {row['against_finest']:.4f}")
         print(f"{h:>9g} {costs[h]:>9.3g}  " + "  ".join(cells))
+    if "adaptive" in result:
+        adaptive = result["adaptive"]
+        steps_used = adaptive["steps"]
+        errors = ", ".join(f"{s} {e:.4f}" for s, e in adaptive["against_finest"].items())
+        print(f"adaptive step: {steps_used['count']} steps ({steps_used['min_s']:g}-"
+              f"{steps_used['max_s']:g} s, mean {steps_used['mean_s']:.3f} s) against "
+              f"{int(round(until / 0.5))} at 0.5 s; {adaptive['wall_s_per_s']:.3g} wall s/s "
+              f"against {costs[0.5]:.3g} at 0.5 s (fixed 0.5 s / adaptive = "
+              f"{adaptive['wall_ratio_fixed_0.5_s_to_adaptive']:.2f}); error against the "
+              f"{steps[0]:g} s run: {errors} (tolerance {tolerance:g})")
     if chosen is None:
         print(f"minetwin coupling-step: no step above {steps[0]:g} s is within {tolerance:g}; "
               "add finer steps to --steps", file=sys.stderr)
