@@ -19,8 +19,8 @@ name and state), and instances of the project's own classes (``$obj``:
 their ``__dict__``: no constructor, ``__reduce__`` or ``__setstate__`` runs,
 and only classes defined in the ``cosim`` and ``surrogate`` packages, or in the
 module of a registered storage model (``cosim.storage.registered_models``: a
-plug-in the user installed), are accepted. Shared references (the mixing model's generator is the asset's)
-stay shared (``$id`` / ``$ref``).
+plug-in the user installed), are accepted. Shared references (the mixing
+model's generator is the asset's) stay shared (``$id`` / ``$ref``).
 """
 
 from __future__ import annotations
@@ -38,7 +38,10 @@ import numpy as np
 from cosim.errors import ValidationError
 
 FORMAT = "minetwin-stockpile-checkpoint"
-VERSION = 2
+VERSION = 3
+"""Raised whenever the state a storage model keeps changes, so that a checkpoint
+written by an earlier MineTwin is refused by name instead of resuming a model
+that lacks some of its state (3: the ROM's stacking order and move interval)."""
 ALLOWED_PACKAGES = ("cosim", "surrogate")
 """Only instances of classes defined in these packages are rebuilt."""
 NUMERIC_KINDS = "biuf?"
@@ -155,7 +158,9 @@ def load_checkpoint(path: Path):
         raise CheckpointError(path, "not a checkpoint of this format (an old pickle checkpoint "
                                     "is not read: it could run code)")
     if header.get("version") != VERSION:
-        raise CheckpointError(path, f"version {header.get('version')!r}")
+        raise CheckpointError(path, f"version {header.get('version')!r}, written by another "
+                                    "MineTwin version whose stockpile state differs; start "
+                                    "the stockpile without this checkpoint")
     if hashlib.sha256(rest).hexdigest() != header.get("sha256"):
         raise CheckpointError(path, "checksum mismatch (truncated or altered)")
     try:

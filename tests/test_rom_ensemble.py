@@ -48,3 +48,17 @@ def test_the_replicas_keep_the_reference_and_perturbed_runs_names():
     assert evaluate.replica_names(4) == ["dem", "dem_perturbed", "dem_replica2",
                                          "dem_replica3"]
     assert evaluate.DEM_REPLICAS >= 3
+
+
+def test_the_pass_conditions_hold_or_fail_at_their_bounds():
+    scenario = {"tracking_error": {"fifo": 0.8, "mixing": 0.7, "rom": 0.10},
+                "tracking_error_dem_noise_floor": 0.081, "speedup_vs_dem": 100.0,
+                "wall_s_per_simulated_s": {"rom": 1 / 20.0}}
+    assert all(evaluate._targets(scenario).values())
+    worse = dict(scenario, tracking_error={"fifo": 0.8, "mixing": 0.7, "rom": 0.1001},
+                 tracking_error_dem_noise_floor=0.05, speedup_vs_dem=99.9,
+                 wall_s_per_simulated_s={"rom": 1 / 19.9})
+    assert not any(value for key, value in evaluate._targets(worse).items()
+                   if key != "tracking_error_below_fifo_and_mixing")
+    assert evaluate._targets(dict(scenario, tracking_error={
+        "fifo": 0.8, "mixing": 0.10, "rom": 0.10}))["tracking_error_below_fifo_and_mixing"] is False

@@ -206,6 +206,11 @@ def test_export_is_what_train_reads_and_counts_as_done(reduced_run, tmp_path):
 
     model = train(data, data / "model.npz", n_mass_modes=2, n_velocity_modes=2, ridge=1.0)
     assert model.n_samples == samples["time"].size and model.grid.shape == design.grid.shape
+    # the random walk adds only what the ROM's own scheme, run on the training
+    # runs, leaves short of the dispersion measured on the DEM
+    spread = model.validation["dispersivity"]
+    assert spread["dem"] > 0 and spread["rom_without_walk"] > 0
+    assert model.dispersivity == max(spread["dem"] - spread["rom_without_walk"], 0.0)
     # a fresh work directory with this data folder has nothing to do
     messages = []
     pd.run_design(design, tmp_path / "fresh", data=data, workers=1, progress=messages.append)

@@ -205,6 +205,32 @@ def test_where_newcomers_come_to_rest_matches_the_dem_and_a_longer_dem_window_do
     assert long - dem >= 2.0, (dem, rom, long)
 
 
+def test_the_feeder_draws_across_its_opening_in_proportion_to_the_column_weights():
+    """Of the packing columns over the opening, each gives mass in proportion to its
+    weight (the ROM's: the field's downward speed there); weight 0 gives nothing;
+    without weights the draw is even."""
+    from surrogate.rom.surface import feeder_take
+
+    container = Container(x_min=-10.0, x_max=10.0, floor=0.0, outlet_x=0.0, inlet_x=0.0,
+                          areal_density=1000.0, repose_angle=0.5, outlet_width=4.0,
+                          feeder_zone_height=1.0)
+    rng = np.random.default_rng(5)
+    centres = np.repeat(np.arange(-10.0, 10.0) + 0.5, 50)  # 20 columns of 1 m, 50 particles each
+    position = np.stack([centres + rng.uniform(-0.4, 0.4, centres.size),
+                         rng.uniform(0.0, 1.0, centres.size)], axis=1)
+    mass = np.ones(centres.size)
+    opening = slice(8, 12)  # the columns centred at -1.5, -0.5, 0.5 and 1.5 m
+    weight = np.zeros(20)
+    weight[opening] = [1.0, 3.0, 0.0, 2.0]
+    for weights, share in ((weight, [10.0, 30.0, 0.0, 20.0]), (None, [15.0] * 4)):
+        drained = np.zeros(20)
+        taken, credit = feeder_take(container, 1.0, position, mass, drained, 60.0, weights)
+        assert taken.size == 60 and credit == 0.0
+        np.testing.assert_allclose(drained[opening], share, atol=1.0)
+        assert drained.sum() == drained[opening].sum()  # nothing from beside the opening
+        assert np.all(np.abs(position[taken, 0]) <= 2.0)
+
+
 if __name__ == "__main__":
     import sys
 

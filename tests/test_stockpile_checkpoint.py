@@ -148,6 +148,18 @@ def test_an_object_array_or_a_corrupt_checkpoint_is_refused_naming_the_file(tmp_
         load_checkpoint(path)
 
 
+def test_a_checkpoint_of_another_version_is_refused_naming_the_file(tmp_path):
+    path = tmp_path / "stockpile.checkpoint"
+    save_checkpoint(path, _filled_state("fifo", {}))
+    line, _, rest = path.read_bytes().partition(b"\n")
+    header = json.loads(line)
+    header["version"] = VERSION - 1
+    path.write_bytes(json.dumps(header).encode() + b"\n" + rest)
+    with pytest.raises(CheckpointError, match=f"{path}: version {VERSION - 1}, written by "
+                                              "another MineTwin version"):
+        load_checkpoint(path)
+
+
 def test_the_stockpile_command_exits_2_on_a_bad_checkpoint(tmp_path, capsys):
     path = tmp_path / "stockpile.checkpoint"
     path.write_bytes(pickle.dumps(_Payload(tmp_path / "pwned")))

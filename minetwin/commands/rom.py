@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import sys
 
 from cosim import jsonio
@@ -137,6 +138,9 @@ def run_evaluate(args) -> int:
     with executors.make(args) as executor:  # the held-out scenes are scored in parallel
         summary = evaluate(model, data, progress=_progress,
                            rom_options={"surface": args.surface}, executor=executor)
+    # the file scored, so that `fidelity calibrate` ties the ROM card to it
+    model_file = Path(args.model) if args.model else data / "rom_model.npz"
+    summary["model_sha256"] = hashlib.sha256(model_file.read_bytes()).hexdigest()
     path = write_summary(summary, args.out or data)
     shown = {k: summary[k] for k in ("tracking_error", "tracking_error_dem_noise_floor",
                                      "velocity_field_rel_error",

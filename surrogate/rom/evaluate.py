@@ -29,6 +29,7 @@ the paper's throughput). The summary has each scenario's scores under
 
 from __future__ import annotations
 
+import copy
 import time
 import warnings
 from dataclasses import asdict
@@ -361,6 +362,101 @@ def leave_one_run_out_residual(samples, n_mass_modes: int) -> float:
     return worst
 
 
+def _training_pile(grid: Grid, mass_field_kg: np.ndarray, pool: np.ndarray,
+                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Particles (masses drawn from ``pool`` [kg], positions uniform within their
+    cell [m]) that fill the cells of a sampled mass field ``(ny, nx)`` [kg] in order."""
+    cells = np.asarray(mass_field_kg, dtype=np.float64).ravel()
+    total = float(cells.sum())
+    count = int(total / pool.mean() * 1.2) + 16
+    mass = rng.choice(pool, count)
+    while mass.sum() < total:
+        mass = np.concatenate((mass, rng.choice(pool, count)))
+    centre = np.cumsum(mass) - 0.5 * mass  # each particle goes to the cell its mass centre falls in
+    keep = centre < total
+    mass, centre = mass[keep], centre[keep]
+    cell = np.minimum(np.searchsorted(np.cumsum(cells), centre, side="right"), cells.size - 1)
+    row, column = np.divmod(cell, grid.nx)
+    position = np.stack([grid.x_min + (column + rng.random(cell.size)) * grid.dx,
+                         grid.y_min + (row + rng.random(cell.size)) * grid.dy], axis=1)
+    return mass, position
+
+
+def rom_numerical_dispersivity(model: RomModel, directory, samples: dict,
+                               seed: int = 0) -> float | None:
+    """The dispersivity [m] the ROM shows without its random walk (``None`` when
+    the training files hold no discharged particles' masses).
+
+    The ROM's own scheme already scatters particles about the mean flow: the
+    column re-packing (``surface.settle``) moves a particle up or down by the
+    mass of every particle that enters or leaves the column below it, the
+    avalanches and the feeder move single particles. Measured as
+    ``dispersion.dispersion_fit`` measures the DEM (pairs of bulk snapshots
+    ``doe.VELOCITY_WINDOW`` apart, one per ``doe.CONTROL_STEP``), on every
+    training run: the ROM (``model`` with dispersivity 0, default surface
+    layer, generator seeded ``seed``) starts from the run's first sampled mass
+    field (particles drawn from the masses the run's DEM discharged,
+    ``_training_pile``), is driven at the run's commanded discharge rate and
+    mean inflow rate for as many seconds as the run was sampled, and its fits are
+    pooled as ``dispersion.dispersivity`` pools the DEM's. Training data only:
+    no held-out scene enters."""
+    from surrogate.rom.dispersion import dispersion_fit
+    from surrogate.rom.storage import RomStorage
+
+    files = sorted(Path(directory, "train").glob("*.npz"))  # doe.load_samples' run order
+    pools, setpoints = [], []
+    for path in files:
+        with np.load(path) as data:
+            if "out_mass" not in data.files or "setpoint" not in data.files:
+                return None
+            pools.append(np.asarray(data["out_mass"], dtype=np.float64))
+            setpoints.append(float(data["setpoint"][0]))
+    pool = np.concatenate(pools)
+    if pool.size == 0:
+        return None
+    bare = copy.copy(model)  # the same fitted arrays, without the random walk
+    bare.dispersivity = 0.0
+    rng = np.random.default_rng(seed)
+    lag = max(int(round(doe.VELOCITY_WINDOW / doe.CONTROL_STEP)), 1)
+    fits = []
+    for run in np.unique(samples["run"]):
+        rows = np.flatnonzero(samples["run"] == run)
+        steps = rows.size + lag
+        discharge = setpoints[run]  # the rate the DEM's feeder was commanded
+        inflow = float(samples["inflow_rate"][rows].mean())
+        mass, position = _training_pile(model.grid, samples["mass"][rows[0]], pool, rng)
+        # the inflow: particles drawn from the pool, each arriving in the step in
+        # which the fed mass passes its own
+        fed = rng.choice(pool, int(inflow * steps * doe.CONTROL_STEP / pool.min()) + 1)
+        arrival = np.searchsorted(np.cumsum(fed), inflow * doe.CONTROL_STEP
+                                  * np.arange(1, steps + 1), side="right")
+        store = ParticleStore(capacity=4096)
+        ids = store.add(mass=mass, f=doe.FEED_F, grade=np.full(mass.size, 0.01),
+                        hardness=np.ones(mass.size), owner=OWNER, time=0.0)
+        storage = RomStorage(bare, rng=np.random.default_rng(int(rng.integers(2 ** 31))))
+        storage.bind(store, OWNER)
+        storage.place(ids, position)
+
+        snapshots, first = [storage.bulk_snapshot(0.0)], 0
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a drawn pile may sit just outside the ranges
+            for k in range(steps):
+                t = k * doe.CONTROL_STEP
+                if arrival[k] > first:
+                    count = arrival[k] - first
+                    new = store.add(mass=fed[first:arrival[k]], f=doe.FEED_F,
+                                    grade=np.full(count, 0.01), hardness=np.ones(count),
+                                    owner=OWNER, time=t)
+                    storage.receive(new, t)
+                    first = arrival[k]
+                leaving = storage.step(t, doe.CONTROL_STEP, discharge)
+                store.remove_slots(store.slots(leaving))
+                snapshots.append(storage.bulk_snapshot(t + doe.CONTROL_STEP))
+        fits += [dispersion_fit(model.grid, snapshots[k], snapshots[k + lag])
+                 for k in range(len(snapshots) - lag)]
+    return dispersivity(fits)
+
+
 def train(directory, out=None, n_mass_modes: int | None = None,
           n_velocity_modes: int | None = None, ridge: float | None = None,
           progress=None) -> RomModel:
@@ -406,8 +502,16 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     model.validation = validation
     model.dem_config = meta.get("dem_config")
     if "dispersion_fit" in samples:
-        model.dispersivity = dispersivity(samples["dispersion_fit"])
-        _say(progress, f"bulk dispersivity {model.dispersivity:.4f} m (measured on the DEM runs)")
+        measured = dispersivity(samples["dispersion_fit"])
+        own = rom_numerical_dispersivity(model, directory, samples)
+        # independent random walks add their diffusivities: the walk adds only
+        # what the ROM's own scheme leaves short of the DEM's dispersion
+        model.dispersivity = measured if own is None else max(measured - own, 0.0)
+        model.validation["dispersivity"] = {"dem": measured, "rom_without_walk": own,
+                                            "applied": model.dispersivity}
+        _say(progress, f"bulk dispersivity {measured:.4f} m measured on the DEM runs, "
+                       + ("" if own is None else f"{own:.4f} m shown by the ROM without its "
+                          "random walk, ") + f"{model.dispersivity:.4f} m applied")
     if out is not None:
         model.provenance = training_provenance(
             directory, out, {"mass_modes": n_mass_modes, "velocity_modes": n_velocity_modes,
@@ -586,17 +690,30 @@ def evaluate_scenario(model: RomModel, heldout: Path, progress=None, rom_options
     summary["velocity_field_rel_error_dem_noise_floor"] = metrics.velocity_field_rel_error(
         perturbed["field_velocity"], dem["field_velocity"], dem["field_mass"])
     summary["simulated_s"] = t1 - t0
+    # the mass the DEM piles held over the scene: where the scores were measured
+    held = np.concatenate([np.asarray(run["field_mass"]).reshape(len(run["field_mass"]), -1)
+                           .sum(axis=1) for run in replicas])
+    summary["held_mass_range_kg"] = [float(held.min()), float(held.max())]
     summary["dem_particles"] = int(dem["particles"])
     summary["dem_dt_s"] = float(dem["dt"])
     return summary
 
 
 def _targets(scenario: dict) -> dict:
+    """The ROM's pass conditions on one held-out scenario: tracking error at most
+    0.10 and within 0.02 of the DEM replicas' noise floor, below FIFO and mixing,
+    at least 100x faster than the DEM and at least 20x real time (wall clock,
+    surface layer included)."""
     tracking = scenario["tracking_error"]
+    floor = scenario["tracking_error_dem_noise_floor"]
     return {"tracking_error_at_most_0.10": bool(tracking["rom"] <= 0.10),
+            "tracking_error_within_0.02_of_dem_noise_floor": bool(
+                tracking["rom"] - floor <= 0.02),
             "tracking_error_below_fifo_and_mixing": bool(
                 tracking["rom"] < min(tracking["fifo"], tracking["mixing"])),
-            "speedup_at_least_100": bool(scenario["speedup_vs_dem"] >= 100.0)}
+            "speedup_at_least_100": bool(scenario["speedup_vs_dem"] >= 100.0),
+            "realtime_factor_at_least_20": bool(
+                1.0 / scenario["wall_s_per_simulated_s"]["rom"] >= 20.0)}
 
 
 AGGREGATE_NOTE = ("top-level tracking_error, tracking_error_dem_noise_floor, grade_error, "

@@ -142,13 +142,14 @@ def run_states(*, quick: bool = False, seed: int = 0, fill: float = FILL_KG,
             if progress is not None:
                 progress(t)
         states.append(_state(store, storage, t, name, feed.cfg))
-    held = float(store.mass[store.slots(storage.held_ids())].sum())
+    held_ids = storage.held_ids()
+    held = float(store.mass[store.slots(held_ids)].sum())
     c = storage.container
     run = {"seed": seed, "fill_kg": fill, "simulated_s": t, "rom_wall_s": round(wall, 3),
            "realtime_factor": round(t / wall, 1) if wall > 0 else None,
            "mass_in_kg": in_kg, "mass_out_kg": out_kg, "held_kg": held,
            "mass_balance_rel_error": abs(fill + in_kg - out_kg - held) / (fill + in_kg),
-           "ids_held_equal_store": bool(np.array_equal(np.sort(storage.held_ids()),
+           "ids_held_equal_store": bool(np.array_equal(np.sort(held_ids),
                                                        np.sort(store.id[:len(store)]))),
            "out_of_training_range_now": list(storage.out_of_range_now),
            "states": {s["name"]: {"time_s": s["time"], "held_kg": float(s["mass"].sum()),
@@ -191,7 +192,7 @@ def plot(states: list[dict], out: Path, run: str) -> list[Path]:
                                       offset_transform=ax.transData, cmap=cmap, linewidths=0)
             disks.set_array(np.where(s["falling"], np.nan, values))
             disks.set_clim(*limits)
-            disks.cmap.set_bad("k")  # surface-layer particles: black
+            disks.set_cmap(disks.cmap.with_extremes(bad="k"))  # surface layer: black
             ax.add_collection(disks)
             if what == "residence time":
                 fig.colorbar(disks, ax=ax, label="residence time [s]", shrink=0.9)

@@ -26,8 +26,10 @@ One step of ``dt`` [s] is split into substeps of at most ``max_step`` [s]:
    ``cosim.storage.StorageModel``), so the discharged mass follows
    q_out * t to within one particle. As the DEM's belt feeder, it takes
    particles from its zone (``outlet_x +- outlet_width / 2``, up to
-   ``feeder_zone_height`` above the floor), evenly across the opening
-   (``surrogate.rom.surface.feeder_take``); should the zone hold too
+   ``feeder_zone_height`` above the floor), across the opening in
+   proportion to the predicted field's downward speed over it (the DEM's
+   draw is fastest over the middle of the opening, and the field is fitted
+   to the DEM's; ``surrogate.rom.surface.feeder_take``); should the zone hold too
    little, the nearest particles to the outlet follow, with horizontal
    offsets weighted by ``FUNNEL_ASPECT`` (the column above the opening
    drains first, material beside it on the floor is the dead zone).
@@ -107,7 +109,7 @@ import numpy as np
 from cosim.errors import ValidationError, check_finite_range
 from cosim.storage import StorageModel, check_discharge_rate
 from surrogate.rom import doe
-from surrogate.rom.advect import advect, write_positions
+from surrogate.rom.advect import advect, interpolate, write_positions
 from surrogate.rom.dispersion import disperse
 from surrogate.rom.grid import mass_field, mean_field
 from surrogate.rom.handover import drop_heights
@@ -184,6 +186,7 @@ class RomStorage(StorageModel):
     name = "rom"
     has_geometry = True
     checkpointable = True
+    default_model_file = DEFAULT_MODEL
 
     def __init__(self, model=None, *, update_interval: float = 1.0, max_step: float = 1.0,
                  move_interval: float = doe.CONTROL_STEP, inflow_window: float = 30.0,
@@ -284,11 +287,11 @@ class RomStorage(StorageModel):
         heights = surface_heights(self.container, width, self._pos, self._mass)
         self._append(ids, mass, deposit(self.container, width, heights, mass, self.rng))
 
-    def _land(self, ids, mass, position) -> None:
+    def _land(self, ids, mass, position, heights) -> None:
         """Particles whose impact the surface DEM resolved roll on from where it
-        left them by the angle-of-repose rule, then join the bulk."""
+        left them by the angle-of-repose rule, then join the bulk (``heights``:
+        the bulk's surface, which the surface DEM's bed was laid on)."""
         if ids.size:
-            heights = surface_heights(self.container, self._width, self._pos, self._mass)
             self._append(ids, mass, deposit(self.container, self._width, heights, mass,
                                             self.rng, landing_x=position[:, 0]))
 
@@ -417,12 +420,28 @@ class RomStorage(StorageModel):
             return part[np.argsort(d2[part], kind="stable")]
         return np.argsort(d2, kind="stable")
 
+    def _draw_weights(self, columns: int):
+        """The feeder's draw per packing column: the predicted field's downward speed
+        [m/s] at the column's centre, half the feeder zone above the floor (None,
+        i.e. even, before a field is predicted or where it has no downward flow)."""
+        if self._field is None:
+            return None
+        c, g = self.container, self.model.grid
+        width = (c.x_max - c.x_min) / columns
+        centre = np.empty((columns, 2))
+        centre[:, 0] = c.x_min + (np.arange(columns) + 0.5) * width
+        centre[:, 1] = c.floor + 0.5 * c.feeder_zone_height
+        down = np.maximum(-interpolate(self._field, g.x_min, g.y_min, g.dx, g.dy, centre)[:, 1],
+                          0.0)
+        opening = np.abs(centre[:, 0] - c.outlet_x) <= 0.5 * c.outlet_width
+        return down if down[opening].sum() > 0 else None
+
     def _take(self, position, mass, credit: float, drained=None) -> tuple[np.ndarray, float]:
         """Indices of the whole particles the feeder takes with ``credit`` [kg]."""
         drained = self._drained if drained is None else drained
         if self.container.outlet_width > 0:
             taken, credit = feeder_take(self.container, self._width, position, mass, drained,
-                                        credit)
+                                        credit, self._draw_weights(drained.size))
             if taken.size or credit < mass.min():
                 return taken, credit
         hint = min(int(credit / max(mass.min(), 1e-300)) + 1, mass.size)
@@ -444,8 +463,10 @@ class RomStorage(StorageModel):
         h = dt / substeps
         leaving = []
         for k in range(substeps):
-            if self.surface_dem is not None:
-                self._land(*self.surface_dem.advance(h, self._width, self._pos, self._mass))
+            if self.surface_dem is not None and self.surface_dem.ids.size:
+                heights = surface_heights(self.container, self._width, self._pos, self._mass)
+                self._land(*self.surface_dem.advance(h, self._width, self._pos, self._mass,
+                                                     heights), heights)
             if self._ids.size == 0:
                 self._credit_kg, self._unmoved = 0.0, 0.0
                 continue
@@ -531,6 +552,13 @@ class RomStorage(StorageModel):
         if self.surface_dem is not None and len(self.surface_dem):
             return np.concatenate((bulk, self.surface_dem.ids))  # still on their way down
         return bulk
+
+    def bulk_snapshot(self, t: float) -> dict:
+        """The bulk particles (not the surface layer) at time ``t`` [s]: a copy of
+        their ``id``, ``position`` [m] and ``mass`` [kg], the form
+        ``surrogate.rom.dispersion.dispersion_fit`` takes."""
+        return {"time": t, "id": self._ids.copy(), "position": self._pos.copy(),
+                "mass": self._mass.copy()}
 
     def _forget(self, ids) -> None:
         self._keep(~np.isin(self._ids, ids))

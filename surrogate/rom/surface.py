@@ -228,7 +228,7 @@ def settle(container: Container, width: float, position: np.ndarray, mass,
 
 
 @numba.njit(cache=True)
-def _feeder_take(position, mass, lo, hi, top, x_min, width, drained, credit, out):
+def _feeder_take(position, mass, lo, hi, top, x_min, width, drained, weight, credit, out):
     columns = drained.size
     n = position.shape[0]
     # the particles in the feeder's zone, found once (the rest cannot be taken)
@@ -251,10 +251,11 @@ def _feeder_take(position, mass, lo, hi, top, x_min, width, drained, credit, out
             c = min(max(int((position[p, 0] - x_min) / width), 0), columns - 1)
             if best[c] < 0 or position[p, 1] < position[zone[best[c]], 1]:
                 best[c] = k
-        # the least-drained column gives its lowest particle
+        # the column least drained for its weight gives its lowest particle
         pick = -1
         for c in range(columns):
-            if best[c] >= 0 and (pick < 0 or drained[c] < drained[pick]):
+            if best[c] >= 0 and weight[c] > 0 and (
+                    pick < 0 or drained[c] * weight[pick] < drained[pick] * weight[c]):
                 pick = c
         if pick < 0 or mass[zone[best[pick]]] > credit:
             return count, credit
@@ -267,23 +268,28 @@ def _feeder_take(position, mass, lo, hi, top, x_min, width, drained, credit, out
 
 
 def feeder_take(container: Container, width: float, position, mass, drained: np.ndarray,
-                credit: float):
+                credit: float, weight=None):
     """Particles the belt feeder takes with ``credit`` [kg]: ``(indices, credit left)``.
 
-    The feeder draws evenly across its opening (outlet_x +- outlet_width / 2,
-    up to ``feeder_zone_height`` above the floor): of the packing columns
-    over the opening, the one that has given the least mass so far
-    (``drained`` [kg] per column, updated in place) gives its lowest
-    particle, while the credit covers that particle's mass. (Taking simply
-    the lowest particle in the zone, as the DEM's feeder does, would drain
-    one packing column at a time: a rat hole the DEM's contacts do not allow.)
+    The feeder draws across its opening (outlet_x +- outlet_width / 2, up to
+    ``feeder_zone_height`` above the floor) in proportion to ``weight``
+    (columns,) [any unit, >= 0] per packing column (default: evenly): of the
+    columns over the opening, the one with the least mass given so far for
+    its weight (``drained`` [kg] per column, updated in place) gives its
+    lowest particle, while the credit covers that particle's mass; a column
+    of weight 0 gives nothing. (Taking simply the lowest particle in the
+    zone, as the DEM's feeder does, would drain one packing column at a
+    time: a rat hole the DEM's contacts do not allow.) ``RomStorage`` weighs
+    the columns by the predicted field's downward speed over the feeder.
     """
     lo = container.outlet_x - 0.5 * container.outlet_width
     hi = container.outlet_x + 0.5 * container.outlet_width
     columns = drained.size
     width = (container.x_max - container.x_min) / columns
+    weight = (np.ones(columns) if weight is None
+              else np.ascontiguousarray(weight, dtype=np.float64).reshape(columns))
     out = np.empty(len(mass), np.int64)
     count, credit = _feeder_take(position, np.ascontiguousarray(mass, dtype=np.float64), lo, hi,
                                  container.floor + container.feeder_zone_height,
-                                 container.x_min, width, drained, float(credit), out)
+                                 container.x_min, width, drained, weight, float(credit), out)
     return out[:count], credit

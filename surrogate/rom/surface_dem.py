@@ -310,9 +310,11 @@ class SurfaceDem:
         self.impact_age = np.concatenate((self.impact_age, np.zeros(mass.size)))
         return position
 
-    def boundary(self, column_width: float, bulk_pos: np.ndarray, bulk_mass: np.ndarray):
+    def boundary(self, column_width: float, bulk_pos: np.ndarray, bulk_mass: np.ndarray,
+                 heights: np.ndarray | None = None):
         """The bulk as the free particles see it: ``(position, radius)`` of the fixed
-        bed disks.
+        bed disks (``heights``: the bulk's ``surface_heights`` at ``column_width``,
+        if the caller has them already).
 
         The surface is the bulk's height profile over its packing columns
         (``surrogate.rom.surface.surface_heights``, the same packing the bulk
@@ -326,7 +328,8 @@ class SurfaceDem:
         disk: it rolls out once the slope exceeds asin(spacing / 4 R)).
         """
         c = self.container
-        heights = surface_heights(c, column_width, bulk_pos, bulk_mass)
+        if heights is None:
+            heights = surface_heights(c, column_width, bulk_pos, bulk_mass)
         if bulk_pos.shape[0] == 0:
             return np.empty((0, 2)), np.empty(0)
         radius = 0.5 * _median_diameter(self.config, bulk_mass)
@@ -360,8 +363,9 @@ class SurfaceDem:
         return first
 
     def advance(self, seconds: float, column_width: float, bulk_pos: np.ndarray,
-                bulk_mass: np.ndarray):
-        """Run the free particles ``seconds`` [s] over the bulk at rest.
+                bulk_mass: np.ndarray, heights: np.ndarray | None = None):
+        """Run the free particles ``seconds`` [s] over the bulk at rest (``heights``:
+        as for ``boundary``).
 
         Returns ``(ids, mass, position)`` of the particles that joined the
         bulk (removed from the surface layer), in their order of arrival.
@@ -369,7 +373,7 @@ class SurfaceDem:
         empty = (np.empty(0, np.uint64), np.empty(0), np.empty((0, 2)))
         if self.ids.size == 0 or seconds <= 0:
             return empty
-        fixed_pos, fixed_radius = self.boundary(column_width, bulk_pos, bulk_mass)
+        fixed_pos, fixed_radius = self.boundary(column_width, bulk_pos, bulk_mass, heights)
         r_max = 0.5 * self.config.diameter_max
         steps = int(np.ceil(seconds / self.dt - 1e-9))
         dt = seconds / steps
