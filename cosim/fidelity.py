@@ -24,7 +24,15 @@ from in each card's ``provenance``.
 Rules (all conservative, so that a choice is never better than measured):
 
 - A card *holds* at an operating point when its throughput and held mass lie
-  within the range of its rows. The DEM is the reference and holds everywhere.
+  within the range of its rows (a row's held mass is the range the scene's pile
+  went through, ``held_mass_min_kg`` to ``held_mass_max_kg``, or its one value).
+  The DEM is the reference and holds everywhere.
+- Several cards of one model (measured on different designs, say a 100 t and a
+  1.5 kt pile) are never merged: the gap between them is unmeasured. At a point
+  the model is represented by the card that holds there (by the least favourable
+  of them, the largest error, when several do); when none holds, by one that
+  does not, so the model is not chosen. Of several reference cards the one whose
+  range holds the point gives the noise floor (else the one with the largest).
 - The error at a point is the largest error of the rows that bracket it
   (nearest measured value at or below and at or above, in throughput and in
   held mass), at the largest measured window not longer than the asked one
@@ -91,6 +99,15 @@ class CardRow:
     noise_floor: float
     wall_s_per_s: float
     scenario: str = ""
+    held_mass_min_kg: float | None = None
+    held_mass_max_kg: float | None = None
+
+    @property
+    def held_mass_range(self) -> tuple[float, float]:
+        """The held mass [kg] the row was measured over (its scene's pile)."""
+        low = self.held_mass_kg if self.held_mass_min_kg is None else self.held_mass_min_kg
+        high = self.held_mass_kg if self.held_mass_max_kg is None else self.held_mass_max_kg
+        return low, high
 
 
 @dataclass(frozen=True)
@@ -111,6 +128,15 @@ class FidelityCard:
                                    getattr(row, name), 0.0)
             check_finite_range(f"card[{self.model}].rows[{k}].window_s", row.window_s, 0.0,
                                low_open=True, unit="s")
+            for name in ("held_mass_min_kg", "held_mass_max_kg"):
+                if getattr(row, name) is not None:
+                    check_finite_range(f"card[{self.model}].rows[{k}].{name}",
+                                       getattr(row, name), 0.0, unit="kg")
+            low, high = row.held_mass_range
+            if not low <= row.held_mass_kg <= high:
+                raise ValidationError(f"card[{self.model}].rows[{k}].held_mass_kg",
+                                      f"within held_mass_min_kg {low:g} and held_mass_max_kg "
+                                      f"{high:g}", f"got {row.held_mass_kg:g}")
 
     @property
     def is_reference(self) -> bool:
@@ -119,13 +145,17 @@ class FidelityCard:
     def holds_at(self, point: OperatingPoint, margin: float = 0.0) -> bool:
         """Whether ``point`` lies in the card's measured range, shrunk by
         ``margin`` (a fraction of each bound) for the hysteresis of a return."""
-        if self.is_reference:
-            return True
+        return self.is_reference or self.covers(point, margin)
+
+    def covers(self, point: OperatingPoint, margin: float = 0.0) -> bool:
+        """Whether ``point`` lies in the range of the card's rows (the reference's
+        too), shrunk by ``margin``."""
         throughput = [r.throughput_kg_s for r in self.rows]
-        held = [r.held_mass_kg for r in self.rows]
+        low = min(r.held_mass_range[0] for r in self.rows)
+        high = max(r.held_mass_range[1] for r in self.rows)
         return (min(throughput) * (1 + margin) <= point.throughput_kg_s
                 <= max(throughput) * (1 - margin)
-                and min(held) * (1 + margin) <= point.held_mass_kg <= max(held) * (1 - margin))
+                and low * (1 + margin) <= point.held_mass_kg <= high * (1 - margin))
 
     def rows_at(self, point: OperatingPoint) -> list[CardRow]:
         """The rows that bracket ``point`` (module docstring)."""
@@ -189,6 +219,26 @@ def _bracket(values: list[float], x: float) -> tuple[float, float]:
     return low, high
 
 
+def cards_at(cards: list[FidelityCard], point: OperatingPoint,
+             margin: float = 0.0) -> list[FidelityCard]:
+    """One card per model at ``point``, in the order the models first appear
+    (module docstring: several cards of one model)."""
+    by_model: dict[str, list[FidelityCard]] = {}
+    for card in cards:
+        by_model.setdefault(card.model, []).append(card)
+    chosen = []
+    for model, group in by_model.items():
+        if len(group) == 1:
+            chosen.append(group[0])
+            continue
+        inside = [c for c in group if c.covers(point, margin)]
+        if model == REFERENCE_MODEL:
+            chosen.append(max(inside or group, key=lambda c: c.noise_floor_at(point)))
+        else:
+            chosen.append(max(inside, key=lambda c: c.error_at(point)) if inside else group[0])
+    return chosen
+
+
 @dataclass
 class Choice:
     """The model ``choose`` picked, why, and the card rows it compared."""
@@ -212,6 +262,7 @@ def choose(cards: list[FidelityCard], point: OperatingPoint, *,
     within it. A target below the DEM's noise floor is refused. ``field_name``
     prefixes the fields named in errors (the scenario's table)."""
     field_name = f"{field_name}." if field_name else ""
+    cards = cards_at(cards, point)
     if (tracking_error is None) == (wall_s_per_s is None):
         raise ValidationError(f"{field_name}accuracy",
                               "either accuracy.tracking_error or budget.wall_s_per_s",
@@ -313,14 +364,15 @@ class Ladder:
     def update(self, t: float, point: OperatingPoint, out_of_range=()) -> Switch | None:
         """The switch due at time ``t`` [s], or None. ``out_of_range``: inputs
         the running model reports outside its training range."""
-        card = next(c for c in self.cards if c.model == self.model)
+        here = cards_at(self.cards, point)
+        card = next(c for c in here if c.model == self.model)
         if out_of_range or not card.holds_at(point):
             why = (f"inputs outside the training range: {sorted(out_of_range)}" if out_of_range
                    else f"outside the range of its card at {point.throughput_kg_s:g} kg/s, "
                         f"{point.held_mass_kg / 1e3:g} t")
             return self._switch(t, self._choice(point, 0.0, excluded=(self.model,)), why)
         down = self._choice(point, self.margin)
-        cost = {c.model: c.cost_at(point) for c in self.cards}
+        cost = {c.model: c.cost_at(point) for c in here}
         if cost[down] >= cost[self.model]:
             self._cheaper_since = None
             return None
@@ -369,6 +421,16 @@ def read_cards(path) -> list[FidelityCard]:
         raise ValidationError(f"{field_name}: format", repr(CARDS_FORMAT))
     return [FidelityCard.from_json(c, f"{field_name}: cards[{k}]")
             for k, c in enumerate(data.get("cards", []))]
+
+
+def own_cards_file(model_file) -> "Path":
+    """Where a trained model file keeps its own cards: beside it, with the suffix
+    ``.cards.json`` (``rom_model.npz`` -> ``rom_model.cards.json``). A stockpile
+    that runs that model reads them too; ``minetwin fidelity calibrate --model``
+    writes there by default."""
+    from pathlib import Path
+
+    return Path(model_file).with_suffix(".cards.json")
 
 
 CARDS_ENTRY_POINT_GROUP = "minetwin.fidelity"

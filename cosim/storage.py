@@ -98,6 +98,11 @@ class StorageModel:
     in turn would (the credit's prefix of the same order): the stockpile
     client catches up that way, one step per slice instead of per bin."""
 
+    default_model_file = None
+    """For a trained model: the file it loads when given none (a ``pathlib.Path``),
+    so that a fidelity card measured on that file (its SHA-256 in the card's
+    provenance) counts for a stockpile that names no file; None otherwise."""
+
     out_of_range_now: tuple[str, ...] = ()
     """Names of the inputs outside the model's range of validity at its latest
     check (a ROM's training ranges); always empty for a model without one."""

@@ -104,6 +104,41 @@ def test_an_input_outside_the_training_range_hands_over_at_once():
     assert switch.to_model == "dem" and "mass_distribution_residual" in switch.reason
 
 
+def _big_pile_card(model, error, cost, floor=0.10):
+    """A card measured on one 1.5 kt pile whose held mass went from 1.3 to 1.5 kt."""
+    rows = tuple(CardRow(throughput_kg_s=q, held_mass_kg=1.5e6, window_s=30.0,
+                         tracking_error=floor if model == "dem" else error, noise_floor=floor,
+                         wall_s_per_s=cost, scenario=f"big_q{q:g}",
+                         held_mass_min_kg=1.3e6, held_mass_max_kg=1.5e6)
+                 for q in (1200.0, 2000.0))
+    return FidelityCard(model=model, rows=rows, provenance={"measured_by": "test"})
+
+
+BIG = [_big_pile_card("fifo", 0.85, 1e-4), _big_pile_card("mixing", 0.70, 3e-4),
+       _big_pile_card("rom", 0.40, 7e-3), _big_pile_card("dem", 0.0, 80.0)]
+
+
+def test_cards_of_one_model_from_two_designs_are_not_merged():
+    """At a point one card per model speaks: the one whose range (held mass as the
+    pile went through it) holds the point, the least favourable where two do; in
+    the gap beside a design only the DEM does, whatever the target."""
+    big_only = OperatingPoint(throughput_kg_s=1500.0, held_mass_kg=1.4e6)  # CARDS: <= 1.2 t/s
+    assert choose(CARDS + BIG, big_only, tracking_error=0.75).model == "mixing"
+    assert choose(CARDS + BIG, big_only, tracking_error=0.5).model == "rom"
+    both = OperatingPoint(throughput_kg_s=1200.0, held_mass_kg=1.45e6)
+    # fifo: 0.55 by the small-pile card, 0.85 by the big one; mixing 0.40 and 0.70
+    assert choose(CARDS + BIG, both, tracking_error=0.86).model == "fifo"
+    assert choose(CARDS + BIG, both, tracking_error=0.8).model == "mixing"
+    gap = OperatingPoint(throughput_kg_s=1500.0, held_mass_kg=1.0e6)
+    assert choose(BIG, gap, tracking_error=0.9).model == "dem"
+    louder = _big_pile_card("dem", 0.0, 80.0, floor=0.2)
+    with pytest.raises(ValidationError, match="0.200, the DEM's noise floor"):
+        choose(BIG + [louder], big_only, tracking_error=0.15)
+    with pytest.raises(ValidationError, match=r"held_mass_kg"):
+        FidelityCard(model="rom", rows=(CardRow(1.0, 5.0, 30.0, 0.1, 0.0, 1.0,
+                                                held_mass_min_kg=1.0, held_mass_max_kg=2.0),))
+
+
 def test_cards_round_trip_through_strict_json():
     import json
 
@@ -120,7 +155,8 @@ def test_cards_round_trip_through_strict_json():
 SHIPPED = Path(__file__).resolve().parents[1] / "surrogate" / "rom" / "data" / "fidelity"
 
 
-def test_the_shipped_cards_are_what_calibrate_makes_of_the_shipped_evaluation(tmp_path):
+@pytest.mark.parametrize("design", ["quick_design", "paper_heldout"])
+def test_the_shipped_cards_are_what_calibrate_makes_of_the_shipped_evaluation(tmp_path, design):
     """The cards are measured: `minetwin fidelity calibrate` on the committed
     evaluation summary gives the committed cards again, row for row."""
     import hashlib
@@ -128,14 +164,56 @@ def test_the_shipped_cards_are_what_calibrate_makes_of_the_shipped_evaluation(tm
     from cosim.fidelity import read_cards
     from minetwin.cli import main
 
-    evaluation = SHIPPED / "quick_design_evaluation.json"
+    evaluation = SHIPPED / f"{design}_evaluation.json"
     out = tmp_path / "cards.json"
     assert main(["fidelity", "calibrate", "--summary", str(evaluation), "--out", str(out)]) == 0
-    shipped = read_cards(SHIPPED / "quick_design_cards.json")
+    shipped = read_cards(SHIPPED / f"{design}_cards.json")
     assert [(c.model, c.rows) for c in read_cards(out)] == [(c.model, c.rows) for c in shipped]
     digest = hashlib.sha256(evaluation.read_bytes()).hexdigest()
     assert all(c.provenance["summary_sha256"] == digest for c in shipped)
     assert [c.model for c in shipped] == ["fifo", "mixing", "rom", "dem"]
+
+
+def test_the_paper_scale_cards_choose_each_model_at_their_measured_scene(capsys):
+    """The paper-scale cards (a 1.5 kt DEM pile at 1.2 t/s in and out, two DEM
+    replicas): a target between two models' measured errors picks the cheaper of
+    them that meets it, a target below the DEM's floor is refused naming it."""
+    import json
+
+    from minetwin.cli import main
+
+    cards = str(SHIPPED / "paper_heldout_cards.json")
+    scene = json.loads((SHIPPED / "paper_heldout_evaluation.json").read_text())["heldout"][0]
+    point = ["fidelity", "choose", "--cards", cards, "--throughput",
+             repr(scene["discharge_rate"]), "--held-mass", repr(scene["fill"])]
+    errors = {c["model"]: c["rows"][0]["tracking_error"]
+              for c in json.loads(Path(cards).read_text())["cards"]}
+    assert errors["dem"] < errors["rom"] < errors["mixing"] < errors["fifo"]
+    for model, target in (("fifo", errors["fifo"]), ("mixing", errors["mixing"]),
+                          ("rom", errors["rom"]), ("dem", 0.5 * (errors["dem"] + errors["rom"]))):
+        assert main(point + ["--tracking-error", repr(target)]) == 0
+        assert capsys.readouterr().out.startswith(f"{model}: ")
+    assert main(point + ["--tracking-error", repr(0.9 * errors["dem"])]) == 2
+    assert "noise floor" in capsys.readouterr().err
+
+
+def test_the_registered_cards_speak_for_the_pile_they_were_measured_on(capsys):
+    """Both shipped designs are registered: a 1.4 kt pile is judged by the paper-scale
+    cards (its DEM pile went from 1.47 kt down to 1.32 kt), a 90 t pile by the quick
+    design's, and a 0.8 kt pile, between them, by none but the DEM's."""
+    from cosim.fidelity import cards_at, read_cards, registered_cards
+    from minetwin.cli import main
+
+    registered = registered_cards()
+    for held_kg, design in ((1.4e6, "paper_heldout"), (90e3, "quick_design")):
+        point = OperatingPoint(throughput_kg_s=1500.0, held_mass_kg=held_kg)
+        assert cards_at(registered, point) == read_cards(SHIPPED / f"{design}_cards.json")
+    assert main(["fidelity", "choose", "--throughput", "1500", "--held-mass", "8e5",
+                 "--tracking-error", "0.95"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("dem: ")
+    holds = {line.split()[0]: line.split()[1] for line in out[2:]}
+    assert holds == {"fifo": "False", "mixing": "False", "rom": "False", "dem": "True"}
 
 
 def test_choose_on_the_command_line(capsys):
@@ -167,9 +245,10 @@ def _auto_plant(tmp_path, stockpile: dict):
 @pytest.mark.parametrize("target, model", [(0.95, "fifo"), (0.6, "mixing"), (0.3, "dem")])
 def test_an_auto_stockpile_runs_the_cheapest_model_its_cards_allow(tmp_path, target, model,
                                                                    capsys):
-    """The plant's stockpile (90 t, 400 kg/s) with the shipped cards: the ROM's card
-    needs the ROM file it was measured on, which this scene does not give, so a
-    target between the mixing and the DEM errors gets the DEM."""
+    """The plant's stockpile (90 t, 400 kg/s) with the registered cards: the quick
+    design's ROM card needs the ROM file it was measured on, which this scene does not
+    give; the paper-scale ROM card is the default ROM's but holds only at 1.3-1.5 kt;
+    so a target between the mixing and the DEM errors gets the DEM."""
     from cosim.scenario import build, summarize
 
     simulation = build(_auto_plant(tmp_path, {"accuracy": {"tracking_error": target}}))
@@ -184,9 +263,65 @@ def test_an_auto_stockpile_runs_the_cheapest_model_its_cards_allow(tmp_path, tar
                                                               "window_s": 30.0}
         rows = {c["model"]: c for c in choice["compared"]}
         assert rows[model]["tracking_error"] <= target
-        assert "rom" not in rows
+        assert rows["rom"]["holds"] is False
+        assert set(rows["rom"]["rows"]) <= {"heldout_q1200", "heldout_q2000",
+                                            "heldout_out1500_in700"}
     finally:
         simulation.close()
+
+
+def test_a_rom_card_counts_for_a_stockpile_that_runs_the_default_rom(tmp_path):
+    """The paper-scale cards' ROM card was measured on the shipped default ROM: a
+    stockpile that names no ROM file runs that ROM, so the card is compared (it
+    does not hold at this 90 t, 400 kg/s scene, so the DEM is chosen)."""
+    from cosim.scenario import build
+
+    cards = str(SHIPPED / "paper_heldout_cards.json")
+    simulation = build(_auto_plant(tmp_path, {"accuracy": {"tracking_error": 0.5},
+                                              "cards": cards}))
+    try:
+        rows = {c["model"]: c for c in simulation.assets["stockpile"].fidelity["compared"]}
+        assert rows["rom"]["holds"] is False and rows["rom"]["rows"] == ["heldout_q1200"]
+        assert simulation.assets["stockpile"].fidelity["model"] == "dem"
+    finally:
+        simulation.close()
+
+
+def test_a_trained_rom_carries_its_own_card(tmp_path, capsys):
+    """`fidelity calibrate --model M` writes M.cards.json beside the ROM file; an auto
+    stockpile that runs that ROM reads it with no `cards` named, and its card (here
+    measured, as a test stand-in, at this 90 t, 400 kg/s scene) is the one that
+    speaks for the ROM."""
+    import json
+    import shutil
+
+    from cosim.fidelity import own_cards_file, read_cards
+    from cosim.scenario import build
+    from minetwin.cli import main
+
+    rom = tmp_path / "my_rom.npz"
+    shutil.copyfile(SHIPPED.parent / "paper_rom.npz", rom)
+    summary = json.loads((SHIPPED / "quick_design_evaluation.json").read_text())
+    for scene in summary["scenarios"].values():  # rows that cover the plant's scene
+        scene["scenario"].update(discharge_rate=400.0, fill=90e3)
+        scene["tracking_error"]["rom"] = 0.05 + scene["tracking_error_dem_noise_floor"]
+    evaluation = tmp_path / "summary.json"
+    evaluation.write_text(json.dumps(summary))
+    assert main(["fidelity", "calibrate", "--summary", str(evaluation),
+                 "--model", str(rom)]) == 0
+    assert f"wrote {own_cards_file(rom)}" in capsys.readouterr().err
+    own_rom = next(c for c in read_cards(own_cards_file(rom)) if c.model == "rom")
+    simulation = build(_auto_plant(tmp_path, {"accuracy": {"tracking_error": 0.5},
+                                              "options": {"model": str(rom)}}))
+    try:
+        choice = simulation.assets["stockpile"].fidelity
+        rows = {c["model"]: c for c in choice["compared"]}
+        assert choice["model"] == "rom" and rows["rom"]["holds"] is True
+        assert rows["rom"]["tracking_error"] == max(r.tracking_error for r in own_rom.rows)
+    finally:
+        simulation.close()
+    assert main(["fidelity", "calibrate", "--summary", str(evaluation)]) == 2
+    assert "--out" in capsys.readouterr().err
 
 
 def test_an_auto_stockpile_below_the_noise_floor_is_refused_on_the_command_line(tmp_path,

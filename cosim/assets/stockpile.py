@@ -374,7 +374,9 @@ def choose_storage(name: str, p: StockpileParameters, seed):
     at the scene's operating point (``cosim.fidelity.choose``). The operating
     point is conservative: the largest scheduled discharge summed over the
     outlets, the initial fill as the held mass. A ROM card counts only with the
-    ROM file it was measured on (``options.model``, by SHA-256). Prints the
+    ROM file it was measured on (``options.model``, else the ROM's
+    ``default_model_file``, by SHA-256); the cards that ROM file carries beside it
+    (``cosim.fidelity.own_cards_file``) are read too. Prints the
     choice and why on stderr. Returns the ``Choice`` and the ``Switcher`` that
     hands the pile up or down the ladder during the run (``cosim.handover``:
     hysteresis margin ``p.switching.margin``, dwell ``p.switching.dwell_s``)."""
@@ -382,14 +384,21 @@ def choose_storage(name: str, p: StockpileParameters, seed):
     import sys
     from pathlib import Path
 
-    from cosim.fidelity import Ladder, OperatingPoint, choose, read_cards, registered_cards
+    from cosim.fidelity import (Ladder, OperatingPoint, choose, own_cards_file, read_cards,
+                                registered_cards)
     from cosim.handover import Switcher
-    from cosim.storage import registered_models
+    from cosim.storage import registered_models, storage_class
 
     cards = read_cards(p.cards) if p.cards else registered_cards()
     rom_file = p.options.get("model")
-    rom_digest = (hashlib.sha256(Path(rom_file).read_bytes()).hexdigest()
-                  if isinstance(rom_file, str) and Path(rom_file).is_file() else None)
+    if rom_file is None and "rom" in registered_models():
+        card_file = storage_class("rom").default_model_file
+    else:
+        card_file = rom_file
+    rom_digest = (hashlib.sha256(Path(card_file).read_bytes()).hexdigest()
+                  if isinstance(card_file, (str, Path)) and Path(card_file).is_file() else None)
+    if rom_digest is not None and own_cards_file(card_file).is_file():
+        cards = cards + read_cards(own_cards_file(card_file))  # the ROM's own card
     usable = [c for c in cards if c.model in registered_models()
               and (c.model != "rom" or c.provenance.get("model_sha256") == rom_digest)]
     throughput = sum(max(rate for _, rate in outlet.discharge) for outlet in p.outlets.values())

@@ -23,15 +23,19 @@ def register(subparsers) -> None:
     calibrate.add_argument("--summary", required=True,
                            help="summary.json written by `minetwin rom evaluate`")
     calibrate.add_argument("--model", help="the ROM file that evaluation scored (its SHA-256 "
-                                           "goes into the ROM card's provenance)")
-    calibrate.add_argument("--out", required=True, help="cards file to write (.json)")
+                                           "goes into the ROM card's provenance; default: "
+                                           "the one the summary records)")
+    calibrate.add_argument("--out", help="cards file to write (.json; default with --model: "
+                                         "the ROM's own, MODEL.cards.json beside it, which a "
+                                         "stockpile running that ROM reads)")
     calibrate.set_defaults(handler=run_calibrate)
     choose = sub.add_parser(
         "choose", help="the cheapest model whose card meets a target at an operating point",
         description="Print the model the cards pick at the operating point, why, and the card "
                     "rows compared. Exit 2 if the target cannot be met (below the DEM's noise "
                     "floor, or a budget no model fits).")
-    choose.add_argument("--cards", required=True, help="cards file (from `calibrate`)")
+    choose.add_argument("--cards", help="cards file (from `calibrate`; default: the "
+                        "registered cards, those a model = \"auto\" stockpile uses)")
     choose.add_argument("--throughput", type=float, required=True,
                         help="discharge rate of the scene [kg/s]")
     choose.add_argument("--held-mass", type=float, required=True,
@@ -49,7 +53,9 @@ def register(subparsers) -> None:
     parser.set_defaults(handler=lambda args: parser.print_help() or 2)
 
 
-def _provenance(args) -> dict:
+def _provenance(args, summary) -> dict:
+    """Where the cards came from; the ROM file is ``--model``, else the one the
+    evaluation ``summary`` (already read) records."""
     import datetime
     import hashlib
     import subprocess
@@ -61,6 +67,8 @@ def _provenance(args) -> dict:
                       timespec="seconds")}
     if args.model:
         provenance["model_sha256"] = hashlib.sha256(Path(args.model).read_bytes()).hexdigest()
+    elif isinstance(summary, dict) and summary.get("model_sha256"):
+        provenance["model_sha256"] = summary["model_sha256"]
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
                                 cwd=Path(__file__).resolve().parent, timeout=10)
@@ -76,17 +84,20 @@ def run_calibrate(args) -> int:
     from pathlib import Path
 
     from cosim.errors import ValidationError
-    from cosim.fidelity import write_cards
+    from cosim.fidelity import own_cards_file, write_cards
     from surrogate.rom.fidelity_cards import cards_from_evaluation
 
+    if not (args.out or args.model):
+        raise ValidationError("--out", "a cards file to write (or --model, whose own cards "
+                              "file MODEL.cards.json is then written)", "neither given")
     try:
         summary = json.loads(Path(args.summary).read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError) as exc:
         raise ValidationError("--summary", "a readable summary.json of `minetwin rom evaluate`",
                               str(exc)) from None
-    provenance = _provenance(args)
+    provenance = _provenance(args, summary)
     cards = cards_from_evaluation(summary, provenance=provenance)
-    path = write_cards(args.out, cards, provenance=provenance)
+    path = write_cards(args.out or own_cards_file(args.model), cards, provenance=provenance)
     for card in cards:
         print(f"{card.model:>7}: " + ", ".join(
             f"{r.scenario} error {r.tracking_error:.3f} (floor {r.noise_floor:.3f}), "
@@ -96,11 +107,12 @@ def run_calibrate(args) -> int:
 
 
 def run_choose(args) -> int:
-    from cosim.fidelity import OperatingPoint, choose, read_cards
+    from cosim.fidelity import OperatingPoint, choose, read_cards, registered_cards
 
     point = OperatingPoint(throughput_kg_s=args.throughput, held_mass_kg=args.held_mass,
                            window_s=args.window)
-    choice = choose(read_cards(args.cards), point, tracking_error=args.tracking_error,
+    cards = read_cards(args.cards) if args.cards else registered_cards()
+    choice = choose(cards, point, tracking_error=args.tracking_error,
                     wall_s_per_s=args.budget, field_name="")
     print(f"{choice.model}: {choice.reason}")
     print(f"{'model':>7} {'holds':>5} {'error':>7} {'floor':>7} {'wall s/s':>10}  rows")

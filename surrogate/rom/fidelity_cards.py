@@ -4,7 +4,8 @@
 held-out scenarios of a DEM design, from the same initial pile with the same
 inflow and feeder as a reference DEM run, and a second DEM run whose initial
 positions differ by 1e-6 m (the noise floor). Each scenario is one operating
-point (its discharge rate and initial held mass, the summary's window) and
+point (its discharge rate and initial held mass, with the range of held mass the
+reference DEM pile went through when the summary records it, and the summary's window) and
 gives one row of each model's card: the model's tracking error against the
 reference DEM, the floor beside it, and the model's wall seconds per
 simulated second. The DEM's own row has the floor as its error and the
@@ -25,6 +26,13 @@ SHIPPED_CARDS = Path(__file__).with_name("data") / "fidelity" / "quick_design_ca
 200-1500 kg/s; ``data/fidelity/quick_design_evaluation.json``), registered as the
 ``minetwin.fidelity`` entry point ``quick_design``."""
 
+PAPER_CARDS = Path(__file__).with_name("data") / "fidelity" / "paper_heldout_cards.json"
+"""The cards measured on the paper-scale held-out design (a 1.47 kt DEM pile of 17,500
+disks at 1.2-2 t/s, held mass over its scenes' range; ``data/fidelity/
+paper_heldout_evaluation.json``), registered as the ``minetwin.fidelity`` entry point
+``paper_heldout``: beside the quick design's, never merged with them
+(``cosim.fidelity.cards_at``)."""
+
 
 def cards_from_evaluation(summary: dict, *, provenance: dict) -> list[FidelityCard]:
     """One card per model (FIFO, mixing, ROM, DEM) from an evaluation summary."""
@@ -42,6 +50,10 @@ def cards_from_evaluation(summary: dict, *, provenance: dict) -> list[FidelityCa
         point = {"throughput_kg_s": float(meta["discharge_rate"]),
                  "held_mass_kg": float(meta["fill"]), "window_s": window,
                  "noise_floor": floor, "scenario": str(meta["name"])}
+        if "held_mass_range_kg" in result:  # the mass the DEM pile went through
+            low, high = (float(m) for m in result["held_mass_range_kg"])
+            point.update(held_mass_min_kg=min(low, point["held_mass_kg"]),
+                         held_mass_max_kg=max(high, point["held_mass_kg"]))
         for name in MODELS:
             rows[name].append(CardRow(tracking_error=float(result["tracking_error"][name]),
                                       wall_s_per_s=float(wall[name]), **point))
