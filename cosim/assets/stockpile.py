@@ -397,8 +397,9 @@ def choose_storage(name: str, p: StockpileParameters, seed):
         card_file = rom_file
     rom_digest = (hashlib.sha256(Path(card_file).read_bytes()).hexdigest()
                   if isinstance(card_file, (str, Path)) and Path(card_file).is_file() else None)
-    if rom_digest is not None and own_cards_file(card_file).is_file():
-        cards = cards + read_cards(own_cards_file(card_file))  # the ROM's own card
+    own_cards = own_cards_file(card_file) if rom_digest is not None else None
+    if own_cards is not None and own_cards.is_file():
+        cards = cards + read_cards(own_cards)  # the ROM's own card
     usable = [c for c in cards if c.model in registered_models()
               and (c.model != "rom" or c.provenance.get("model_sha256") == rom_digest)]
     throughput = sum(max(rate for _, rate in outlet.discharge) for outlet in p.outlets.values())
