@@ -56,7 +56,8 @@ def register(subparsers) -> None:
                     "finished runs into --data (train/*.npz, manifest.json, doe.json).")
     design.add_argument("--design", default="paper",
                         help="paper (default), reduced, paper_heldout (the held-out "
-                             "scenes) or reduced_heldout")
+                             "scenes), paper_heldout_nonsmooth (those scenes by the "
+                             "nonsmooth DEM, one run each) or reduced_heldout")
     design.add_argument("--work", required=True,
                         help="work directory: checkpoints, states and results")
     design.add_argument("--data", default=None,

@@ -274,20 +274,26 @@ HELDOUT_REPLICAS = 3
 """DEM replicas per held-out scene (issue 15: at least 3)."""
 
 
-def _heldout_runs(start: str, scenes, duration: float, first_seed: int) -> tuple:
-    """Each scene ``(name, discharge, inflow)`` as ``HELDOUT_REPLICAS`` runs of
+def _heldout_runs(start: str, scenes, duration: float, first_seed: int,
+                  replicas: int = HELDOUT_REPLICAS) -> tuple:
+    """Each scene ``(name, discharge, inflow)`` as ``replicas`` runs of
     the same inflow (same feed seed and tracking ids) from ``start``, the
     first unperturbed, the others moved by ``HELDOUT_PERTURBATION``; ordered
     replica by replica, so that every scene gets its first two (a noise floor)
     before any gets its third."""
     runs = []
-    for replica in range(HELDOUT_REPLICAS):
+    for replica in range(replicas):
         for k, (name, q_out, q_in) in enumerate(scenes):
             runs.append(RunSpec(f"{name}_r{replica}", start, q_out, q_in, duration,
                                 seed=first_seed + k, first_tracking_id=10_000 * (first_seed + k),
                                 perturbation=HELDOUT_PERTURBATION if replica else 0.0,
                                 replica=replica))
     return tuple(runs)
+
+
+HELDOUT_SCENES = (("heldout_q1200", 1200.0, 1200.0), ("heldout_q2000", 2000.0, 2000.0),
+                  ("heldout_out1500_in700", 1500.0, 700.0))
+"""The held-out scenes ``(name, discharge [kg/s], inflow [kg/s])``."""
 
 
 def paper_heldout_design() -> Design:
@@ -299,11 +305,25 @@ def paper_heldout_design() -> Design:
     ``HELDOUT_REPLICAS`` DEM replicas."""
     cfg = paper_config()
     piles = (PileSpec("heldout_1500t", 17_500, seed=2),)
-    scenes = (("heldout_q1200", 1200.0, 1200.0), ("heldout_q2000", 2000.0, 2000.0),
-              ("heldout_out1500_in700", 1500.0, 700.0))
     return Design("paper_heldout", cfg, paper_grid(cfg), piles,
-                  _heldout_runs("pile:heldout_1500t", scenes, 180.0, first_seed=100),
+                  _heldout_runs("pile:heldout_1500t", HELDOUT_SCENES, 180.0, first_seed=100),
                   checkpoint_interval=20.0, keep_start_states=True)
+
+
+def paper_heldout_nonsmooth_design() -> Design:
+    """The held-out scenes of ``paper_heldout_design`` run by the nonsmooth DEM
+    (``DemConfig(method="nonsmooth")``: the paper's 11 ms step and 100 projected
+    Gauss-Seidel sweeps, Servin et al. 2014), one run per scene, to score that
+    method's tracking error against the explicit DEM's replicas at the paper's
+    scale (``surrogate.rom.evaluate.score_dem_method``). Its pile is laid out as
+    the explicit design's (same disks and seed) and settled by the nonsmooth
+    method."""
+    cfg = paper_config(method="nonsmooth")
+    piles = (PileSpec("heldout_1500t", 17_500, seed=2),)
+    return Design("paper_heldout_nonsmooth", cfg, paper_grid(cfg), piles,
+                  _heldout_runs("pile:heldout_1500t", HELDOUT_SCENES, 180.0, first_seed=100,
+                                replicas=1),
+                  checkpoint_interval=20.0)
 
 
 def reduced_heldout_design() -> Design:
@@ -317,7 +337,8 @@ def reduced_heldout_design() -> Design:
 
 
 DESIGNS = {"paper": paper_design, "reduced": reduced_design,
-           "paper_heldout": paper_heldout_design, "reduced_heldout": reduced_heldout_design}
+           "paper_heldout": paper_heldout_design, "reduced_heldout": reduced_heldout_design,
+           "paper_heldout_nonsmooth": paper_heldout_nonsmooth_design}
 
 
 def get_design(name: str) -> Design:
@@ -774,8 +795,11 @@ def mean_disk_mass(cfg) -> float:
 def estimate(design: Design) -> dict:
     """Planned cost of every pile and run: DEM particle-steps (steps x mean
     disks held; a run's disks change by (inflow - discharge) x duration /
-    mean disk mass), keyed by name."""
-    dt = design.config.stable_dt
+    mean disk mass), keyed by name. A nonsmooth step (``nonsmooth_dt``) runs
+    ``solver_iterations`` sweeps over the contacts, so its particle-steps cost far
+    more each than the explicit method's: give ``--rate`` for that method."""
+    cfg = design.config
+    dt = cfg.nonsmooth_dt if cfg.method == "nonsmooth" else cfg.stable_dt
     mean_mass = mean_disk_mass(design.config)
     cost, end_particles = {}, {}
     for pile in design.piles:

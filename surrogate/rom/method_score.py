@@ -1,0 +1,115 @@
+"""Another DEM method's runs of the held-out scenes, scored against the explicit DEM's replicas.
+
+Source: the method comparison asks for the stockpile tracking error of each DEM
+method with the noise floor beside it, at the paper's scale (Servin, Wang,
+Lacoursière and Bodin 2014 for the nonsmooth method; ``surrogate/dem/README.md``).
+The metric is ``surrogate.rom.evaluate``'s: the tracking error of the outflow
+composition in 30 s windows (``metrics.tracking_error``) against each explicit
+replica of the scene, averaged, with its spread; the noise floor is the explicit
+replicas' error among themselves (``evaluate.noise_floor``). The method's runs
+come from a held-out design of that method (``paper_design.
+paper_heldout_nonsmooth_design``: the same scenes, inflow, feed seeds and tracking
+ids), exported with ``minetwin rom design --export``; a scene is scored when the
+method's run and at least 2 explicit replicas of it finished.
+
+Cost is wall and CPU seconds per simulated second of each run's record (the
+explicit DEM's: the mean over its replicas); the machines' load differed, so the
+CPU figure is the comparable one.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from cosim.errors import ValidationError
+from surrogate.rom.evaluate import OUTFLOW_KEYS, ensemble_score, noise_floor
+
+
+def _done_runs(data: Path) -> dict:
+    """Finished runs of an exported design by scene (the name without ``_r<k>``)."""
+    manifest = data / "manifest.json"
+    if not manifest.is_file():
+        raise ValidationError("--data", "an exported design folder with manifest.json "
+                              "(`minetwin rom design ... --export`)", f"{data} has none")
+    records = json.loads(manifest.read_text())
+    scenes = {}
+    for record in sorted(records["runs"], key=lambda r: r["spec"]["replica"]):
+        if record.get("status") == "done":
+            scene = record["name"].removesuffix(f"_r{record['spec']['replica']}")
+            scenes.setdefault(scene, []).append(record)
+    return {"design": records.get("design"), "dem_config": records.get("dem_config", {}),
+            "scenes": scenes}
+
+
+def _outflow(data: Path, record: dict) -> dict:
+    with np.load(data / "train" / f"{record['name']}.npz") as stored:
+        return {k: np.asarray(stored[f"out_{k}"], dtype=np.float64) for k in OUTFLOW_KEYS}
+
+
+def _start_time(data: Path, record: dict) -> float:
+    """The simulated time [s] the run started at: its first sample's (``paper_design``
+    samples the start state first; its start state need not ship)."""
+    with np.load(data / "train" / f"{record['name']}.npz") as stored:
+        return float(stored["time"][0])
+
+
+def _cost(records: list) -> dict:
+    duration = np.array([r["spec"]["duration"] for r in records], dtype=np.float64)
+    wall = np.array([r["wall_s"] for r in records], dtype=np.float64) / duration
+    cpu = np.array([r["cpu_s"] for r in records], dtype=np.float64) / duration
+    return {"wall_s_per_simulated_s": float(wall.mean()),
+            "cpu_s_per_simulated_s": float(cpu.mean()),
+            "dt_s": float(records[0]["dt_s"]), "particles": int(records[0]["particles_start"])}
+
+
+def score_dem_method(method_data, reference_data) -> dict:
+    """Score the finished runs of ``method_data`` (an exported held-out design of
+    another DEM method) against the explicit replicas in ``reference_data``.
+
+    Returns ``{"method": ..., "scenes": {scene: {...}}, "skipped": {scene: why},
+    "explicit_costs": {scene: {...}}}`` (the explicit replicas' cost in every
+    reference scene, scored or not);
+    raises ``ValidationError`` when no scene can be scored."""
+    method_data, reference_data = Path(method_data), Path(reference_data)
+    method, reference = _done_runs(method_data), _done_runs(reference_data)
+    scenes, skipped = {}, {}
+    for scene, runs in method["scenes"].items():
+        replicas = reference["scenes"].get(scene, [])
+        if len(replicas) < 2:
+            skipped[scene] = f"{len(replicas)} explicit replicas finished (2 needed)"
+            continue
+        references = [_outflow(reference_data, r) for r in replicas]
+        t0 = _start_time(reference_data, replicas[0])
+        t1 = t0 + float(replicas[0]["spec"]["duration"])
+        outflow = _outflow(method_data, runs[0])
+        # the method's pile may have settled to a slightly different time: compare
+        # the same seconds after each run's start
+        outflow["time"] = outflow["time"] - _start_time(method_data, runs[0]) + t0
+        scores = ensemble_score(outflow, references, t0, t1)
+        floor = noise_floor(references, t0, t1)
+        scenes[scene] = {
+            "tracking_error": scores["tracking_error"],
+            "tracking_error_spread": scores["tracking_error_spread"],
+            "tracking_error_dem_noise_floor": floor["tracking_error"],
+            "dem_noise_floor_spread": floor["tracking_error_spread"],
+            "grade_error": scores["grade_error"], "hardness_error": scores["hardness_error"],
+            "method_cost": _cost(runs[:1]), "explicit_cost": _cost(replicas),
+            "method_mass_balance_error": float(runs[0]["mass_balance_error"]),
+            "explicit_replicas": [r["name"] for r in replicas],
+            "simulated_s": t1 - t0}
+    if not scenes:
+        why = "; ".join(f"{s}: {r}" for s, r in skipped.items()) or "no finished run"
+        raise ValidationError("--data", "a finished run of a scene with 2 explicit replicas",
+                              f"{method_data}: {why}")
+    config = method["dem_config"]
+    return {"method": config.get("method", "explicit"),
+            "explicit_costs": {scene: _cost(replicas)
+                               for scene, replicas in reference["scenes"].items()},
+            "method_settings": {k: config[k] for k in ("nonsmooth_dt", "solver_iterations",
+                                                       "solver_tolerance", "normal_stiffness")
+                                if k in config},
+            "method_design": method["design"], "reference_design": reference["design"],
+            "scenes": scenes, "skipped": skipped}

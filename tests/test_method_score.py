@@ -1,0 +1,99 @@
+"""Scoring another DEM method's held-out runs against the explicit replicas
+(surrogate.rom.method_score), on the shipped paper-scale held-out data."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cosim.errors import ValidationError
+from surrogate.rom import metrics
+from surrogate.rom.method_score import score_dem_method
+
+HELDOUT = Path(__file__).resolve().parents[1] / "surrogate" / "rom" / "data" / "paper_heldout"
+
+
+def _method_folder(tmp_path, run_name: str, shift_s: float = 0.0) -> Path:
+    """A design folder holding one run of the reference data, renamed replica 0 of
+    its scene, its times moved by ``shift_s`` (another method's pile that settled to
+    a later time)."""
+    manifest = json.loads((HELDOUT / "manifest.json").read_text())
+    record = next(r for r in manifest["runs"] if r["name"] == run_name)
+    scene = run_name.rsplit("_r", 1)[0]
+    record = dict(record, name=f"{scene}_r0", spec=dict(record["spec"], replica=0))
+    folder = tmp_path / "method"
+    (folder / "train").mkdir(parents=True)
+    with np.load(HELDOUT / "train" / f"{run_name}.npz") as stored:
+        arrays = {k: stored[k] for k in stored.files}
+    for key in ("time", "out_time", "in_time"):
+        arrays[key] = arrays[key] + np.asarray(shift_s, dtype=arrays[key].dtype)
+    np.savez_compressed(folder / "train" / f"{scene}_r0.npz", **arrays)
+    (folder / "manifest.json").write_text(json.dumps(
+        {"design": "test", "dem_config": dict(manifest["dem_config"], method="nonsmooth"),
+         "runs": [record]}))
+    return folder
+
+
+def _outflow(name):
+    with np.load(HELDOUT / "train" / f"{name}.npz") as stored:
+        return {k: np.asarray(stored[f"out_{k}"], dtype=np.float64)
+                for k in ("time", "tracking_id", "mass", "grade", "hardness")}
+
+
+def test_a_replica_scored_as_another_method_gets_its_mean_error_against_the_replicas(tmp_path):
+    scores = score_dem_method(_method_folder(tmp_path, "heldout_q2000_r1"), HELDOUT)
+    assert scores["method"] == "nonsmooth"
+    assert list(scores["scenes"]) == ["heldout_q2000"]
+    row = scores["scenes"]["heldout_q2000"]
+    with np.load(HELDOUT / "train" / "heldout_q2000_r0.npz") as stored:
+        t0 = float(stored["time"][0])
+    t1 = t0 + 180.0
+    expected = [metrics.tracking_error(_outflow("heldout_q2000_r1"), _outflow(f"heldout_q2000_r{k}"),
+                                       t0, t1) for k in range(3)]
+    assert expected[1] == 0.0  # against itself
+    assert row["tracking_error"] == pytest.approx(np.mean(expected), rel=1e-12)
+    assert row["tracking_error_spread"]["n"] == 3
+    assert row["explicit_replicas"] == [f"heldout_q2000_r{k}" for k in range(3)]
+    assert set(scores["explicit_costs"]) == {"heldout_q1200", "heldout_q2000",
+                                             "heldout_out1500_in700"}
+    assert row["method_cost"]["cpu_s_per_simulated_s"] > 0
+
+
+def test_a_method_run_that_started_later_is_compared_over_its_own_first_seconds(tmp_path):
+    at_start = score_dem_method(_method_folder(tmp_path / "a", "heldout_q1200_r2"), HELDOUT)
+    later = score_dem_method(_method_folder(tmp_path / "b", "heldout_q1200_r2", shift_s=0.5),
+                             HELDOUT)
+    assert (later["scenes"]["heldout_q1200"]["tracking_error"]
+            == pytest.approx(at_start["scenes"]["heldout_q1200"]["tracking_error"], abs=1e-6))
+
+
+def test_a_scene_without_explicit_replicas_is_refused_by_name(tmp_path):
+    folder = _method_folder(tmp_path, "heldout_q1200_r0")
+    manifest = json.loads((folder / "manifest.json").read_text())
+    manifest["runs"][0]["name"] = "unknown_scene_r0"
+    shutil.move(folder / "train" / "heldout_q1200_r0.npz", folder / "train" / "unknown_scene_r0.npz")
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValidationError, match="unknown_scene: 0 explicit replicas"):
+        score_dem_method(folder, HELDOUT)
+
+
+def test_the_example_charts_both_dem_methods_beside_the_storage_models(tmp_path):
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "paper_scale_methods.py"
+    spec = importlib.util.spec_from_file_location("paper_scale_methods", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    out = tmp_path / "out"
+    assert example.main(["--method-data", str(_method_folder(tmp_path, "heldout_q2000_r1")),
+                         "--out", str(out)]) == 0
+    result = json.loads((out / "paper_scale_methods.json").read_text())
+    models = [p["model"] for p in result["points"]["heldout_q2000"]]
+    assert models == ["fifo", "mixing", "rom", "dem_explicit", "dem_nonsmooth"]
+    assert all(p["cost_s_per_s"] > 0 for p in result["points"]["heldout_q2000"])
+    assert (out / "paper_scale_methods.png").stat().st_size > 10_000
+    assert example.main(["--method-data", str(tmp_path / "missing"), "--out", str(out)]) == 2
