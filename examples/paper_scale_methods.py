@@ -14,7 +14,9 @@ averaged) is drawn against its compute per simulated second:
   (``surrogate/rom/data/paper_heldout/manifest.json``);
 - the nonsmooth DEM (11 ms, 100 projected Gauss-Seidel sweeps, Servin et al.
   2014) where its runs of the same scenes finished
-  (``surrogate.rom.method_score``; the design ``paper_heldout_nonsmooth``).
+  (``surrogate.rom.method_score``; the design ``paper_heldout_nonsmooth``); a
+  run the blow-up guard stopped is an X at error 1 at its cost until then, with
+  the time it lasted.
 
 DEM costs are CPU seconds: those runs shared a loaded machine, and their wall
 time says more about the load than about the method.
@@ -58,14 +60,25 @@ def points(evaluation: dict, methods: dict) -> dict:
                      row["tracking_error_dem_noise_floor"],
                      "cost_s_per_s": (explicit_cost["cpu_s_per_simulated_s"]
                                       if explicit_cost else None), "cost_kind": "cpu"})
+        failed = methods["failed"].get(scene)
         if scored is not None:
             rows.append({"model": f"dem_{methods['method']}",
                          "tracking_error": scored["tracking_error"],
                          "spread": scored["tracking_error_spread"],
                          "cost_s_per_s": scored["method_cost"]["cpu_s_per_simulated_s"],
                          "cost_kind": "cpu"})
+        elif failed is not None:  # no outflow to score: where and when it blew up
+            rows.append({"model": f"dem_{methods['method']}", "tracking_error": None,
+                         "blew_up_after_s": failed["after_s"], "reason": failed["reason"],
+                         "cost_s_per_s": failed["method_cost"]["cpu_s_per_simulated_s"],
+                         "cost_kind": "cpu"})
         out[scene] = rows
     return out
+
+
+BLOWN_UP_ROW = 1.0
+"""Where a run that blew up is drawn (it has no tracking error): error 1, nothing
+tracked."""
 
 
 def plot(result: dict, path: Path) -> None:
@@ -84,6 +97,13 @@ def plot(result: dict, path: Path) -> None:
             if p["cost_s_per_s"] is None:
                 continue
             colour, marker, label = style[p["model"]]
+            if p["tracking_error"] is None:
+                ax.scatter(p["cost_s_per_s"], BLOWN_UP_ROW, color=colour, marker="x", s=70,
+                           zorder=3, label=f"{label}: blew up (cost until then)")
+                ax.annotate(f"blew up after {p['blew_up_after_s']:.0f} s",
+                            (p["cost_s_per_s"], BLOWN_UP_ROW), textcoords="offset points",
+                            xytext=(-6, -12), ha="right", fontsize=7, color=colour)
+                continue
             ax.scatter(p["cost_s_per_s"], p["tracking_error"], color=colour, marker=marker,
                        s=50, zorder=3, label=label)
             if "spread" in p:
@@ -92,6 +112,7 @@ def plot(result: dict, path: Path) -> None:
                           label="range over the explicit replicas")
         ax.axhline(0.10, color="black", ls=":", lw=1, label="target 0.10")
         ax.axvline(1.0, color="grey", ls="-", lw=0.5, label="real time")
+        ax.set_ylim(-0.03, BLOWN_UP_ROW + 0.08)
         ax.set_xscale("log")
         ax.set_xlabel("compute per simulated second, one core [s/s]")
         ax.set_title(scene, fontsize=9)
@@ -140,6 +161,9 @@ def main(argv=None) -> int:
               f"{row['tracking_error_dem_noise_floor']:.3f}; CPU s per simulated s: "
               f"{row['method_cost']['cpu_s_per_simulated_s']:.1f} against the explicit "
               f"DEM's {row['explicit_cost']['cpu_s_per_simulated_s']:.1f}")
+    for scene, row in methods["failed"].items():
+        print(f"{scene}: {methods['method']} DEM blew up after {row['after_s']:.1f} s "
+              f"({row['reason']}); picture at the failure: {row['picture']}")
     for scene, why in methods["skipped"].items():
         print(f"{scene}: not scored: {why}", file=sys.stderr)
     print(f"wrote {args.out / 'paper_scale_methods.png'}")

@@ -40,8 +40,10 @@ def _done_runs(data: Path) -> dict:
         if record.get("status") == "done":
             scene = record["name"].removesuffix(f"_r{record['spec']['replica']}")
             scenes.setdefault(scene, []).append(record)
+    unstable = {record["name"].removesuffix(f"_r{record['spec']['replica']}"): record
+                for record in records.get("runs_unstable", [])}
     return {"design": records.get("design"), "dem_config": records.get("dem_config", {}),
-            "scenes": scenes}
+            "scenes": scenes, "unstable": unstable}
 
 
 def _outflow(data: Path, record: dict) -> dict:
@@ -69,7 +71,9 @@ def score_dem_method(method_data, reference_data) -> dict:
     """Score the finished runs of ``method_data`` (an exported held-out design of
     another DEM method) against the explicit replicas in ``reference_data``.
 
-    Returns ``{"method": ..., "scenes": {scene: {...}}, "skipped": {scene: why},
+    Returns ``{"method": ..., "scenes": {scene: {...}}, "failed": {scene: {...}}
+    (runs the guard stopped: when, why, their cost so far, the picture at the
+    failure), "skipped": {scene: why},
     "explicit_costs": {scene: {...}}}`` (the explicit replicas' cost in every
     reference scene, scored or not);
     raises ``ValidationError`` when no scene can be scored."""
@@ -100,7 +104,17 @@ def score_dem_method(method_data, reference_data) -> dict:
             "method_mass_balance_error": float(runs[0]["mass_balance_error"]),
             "explicit_replicas": [r["name"] for r in replicas],
             "simulated_s": t1 - t0}
-    if not scenes:
+    failed = {}
+    for scene, record in method["unstable"].items():
+        if scene in scenes:
+            continue
+        after = record["unstable_dem_time_s"] - record["start_time_s"]
+        failed[scene] = {"reason": record["unstable_reason"], "after_s": after,
+                         "method_cost": _cost([dict(record, spec=dict(record["spec"],
+                                                                      duration=after))]),
+                         "picture": (str(method_data / record["failure_picture"])
+                                     if record.get("failure_picture") else None)}
+    if not scenes and not failed:
         why = "; ".join(f"{s}: {r}" for s, r in skipped.items()) or "no finished run"
         raise ValidationError("--data", "a finished run of a scene with 2 explicit replicas",
                               f"{method_data}: {why}")
@@ -112,4 +126,4 @@ def score_dem_method(method_data, reference_data) -> dict:
                                                        "solver_tolerance", "normal_stiffness")
                                 if k in config},
             "method_design": method["design"], "reference_design": reference["design"],
-            "scenes": scenes, "skipped": skipped}
+            "scenes": scenes, "failed": failed, "skipped": skipped}

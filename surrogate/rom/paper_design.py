@@ -513,7 +513,7 @@ class _RunState:
         self.feed = doe.LotFeed(run.first_tracking_id, run.seed)
         self.wall = self.cpu = self.particle_steps = 0.0
         self.resumed_at = []
-        self.start = {}  # particles, held and emitted mass [kg] of the start state
+        self.start = {}  # particles, held and emitted mass [kg], time [s] of the start state
 
     def save(self, path: Path) -> None:
         # float32 as in the result: the cast is the same whenever it happens
@@ -630,7 +630,7 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
         dem.discharged()  # flush: only this run's outflow is recorded
         state.window = [_bulk(dem)]
         state.held = [dem.held_mass()]
-        state.start = {"particles": dem.n, "held_mass_kg": dem.held_mass(),
+        state.start = {"particles": dem.n, "held_mass_kg": dem.held_mass(), "time_s": dem.time,
                        "emitted_mass_kg": dem.emitted_mass,
                        "discharged_mass_kg": dem.discharged_mass}
     dem.set_discharge_rate(run.discharge_rate, outlet=0)
@@ -692,6 +692,7 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
               "dt_over_tc": dem.dt / design.config.contact_time,
               "wall_s": state.wall, "cpu_s": state.cpu,
               "particle_steps": state.particle_steps, "resumed_at_s": state.resumed_at,
+              "start_time_s": state.start.get("time_s"),
               "particles_start": state.start.get("particles"),
               "held_mass_start_kg": state.start.get("held_mass_kg"),
               "inflow_mass_kg": _since_start(dem.emitted_mass, state.start, "emitted_mass_kg"),
@@ -700,8 +701,16 @@ def run_one(design: Design, run: RunSpec, work: Path, start_path: Path, progress
     runs = work / "runs"
     runs.mkdir(parents=True, exist_ok=True)
     if reason:
+        from surrogate.dem import plots
+
+        # the pile at the failure, coloured by speed (where the contacts gave way)
+        pictures = plots.pile_pictures(dem.snapshot(), runs / f"{key}_failure",
+                                       run=f"{run.name} at the failure, t = {dem.time:.2f} s")
         record.update(status="unstable", unstable_in_control_step=state.step,
-                      unstable_dem_time_s=dem.time, unstable_reason=reason)
+                      unstable_dem_time_s=dem.time, unstable_reason=reason,
+                      failure_picture=str(next(p for p in pictures
+                                               if p.name == "pile_speed.png")
+                                          .relative_to(work)))
         _write_json(runs / f"{key}.json", record)
         _say(progress, f"run {run.name} ({key}): UNSTABLE at control step {state.step}: "
                        f"{reason}; recorded, the design goes on")
@@ -1110,6 +1119,7 @@ def export(design: Design, work, data, with_partial: bool = False) -> dict:
     for path in (data / "train").glob("*.npz"):  # results of runs no longer in the design
         if path.stem not in {r["name"] for r in records.values()}:
             path.unlink()
+    unstable = _export_failures(work, data, keys, records)
     piles = write_manifest(design, work)["piles_built"] if work.is_dir() else []
     old = json.loads((data / "manifest.json").read_text()) if (data / "manifest.json").is_file() \
         else {}
@@ -1118,11 +1128,14 @@ def export(design: Design, work, data, with_partial: bool = False) -> dict:
     ordered = [records[run_key(design, r)] for r in design.runs if run_key(design, r) in records]
     manifest = {**design_description(design), "piles": piles, "runs": ordered,
                 "runs_done": len(ordered), "runs_total": len(design.runs),
+                "runs_unstable": [unstable[run_key(design, r)] for r in design.runs
+                                  if run_key(design, r) in unstable],
                 "bytes": sum(r["result_bytes"] for r in ordered),
                 "dem_cpu_hours": sum(r["cpu_s"] for r in ordered) / 3600.0,
                 "regenerate": f"minetwin rom design --design {design.name} --work DIR "
                               f"--data {data} --workers 2"}
-    manifest["state_bytes"] = _export_states(design, work, data, set(records), with_partial)
+    manifest["state_bytes"] = _export_states(design, work, data, set(records) | set(unstable),
+                                             with_partial)
     _write_json(data / "manifest.json", manifest)
     if piles:
         base = piles[0]
@@ -1131,6 +1144,28 @@ def export(design: Design, work, data, with_partial: bool = False) -> dict:
         doe.write_meta(data, design.config, design.grid, container,
                        {"design": design.name, "scenarios": [r["spec"] for r in ordered]})
     return manifest
+
+
+def _export_failures(work: Path, data: Path, keys: dict, done: dict) -> dict:
+    """Records of the runs that blew up (the guard stopped them; they have no
+    result), by key, with their picture at the failure copied to
+    ``failures/<name>_speed.png`` (the path in the record then relative to
+    ``data``); those of an earlier export are kept unless the run finished since."""
+    old = json.loads((data / "manifest.json").read_text()) if (data / "manifest.json").is_file() \
+        else {}
+    unstable = {r["key"]: r for r in old.get("runs_unstable", []) if r["key"] not in done}
+    for key, record in _load_records(work).items() if work.is_dir() else []:
+        if key not in keys or record.get("status") != "unstable":
+            continue
+        record = dict(record)
+        picture = work / record.get("failure_picture", "")
+        if record.get("failure_picture") and picture.is_file():
+            target = data / "failures" / f"{keys[key]}_speed.png"
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(picture, target)
+            record["failure_picture"] = str(target.relative_to(data))
+        unstable[key] = record
+    return unstable
 
 
 def _export_states(design: Design, work: Path, data: Path, done: set,
