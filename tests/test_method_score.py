@@ -97,3 +97,38 @@ def test_the_example_charts_both_dem_methods_beside_the_storage_models(tmp_path)
     assert all(p["cost_s_per_s"] > 0 for p in result["points"]["heldout_q2000"])
     assert (out / "paper_scale_methods.png").stat().st_size > 10_000
     assert example.main(["--method-data", str(tmp_path / "missing"), "--out", str(out)]) == 2
+
+
+def test_a_run_the_guard_stopped_is_exported_with_its_picture_and_charted(tmp_path):
+    """A design run that blew up has no result: export lists its record (when, why)
+    with its picture at the failure, and the method's score reports it as failed."""
+    from surrogate.rom import paper_design
+
+    design = paper_design.paper_heldout_nonsmooth_design()
+    run = design.runs[0]
+    key = paper_design.run_key(design, run)
+    work, data = tmp_path / "work", tmp_path / "data"
+    (work / "runs" / f"{key}_failure").mkdir(parents=True)
+    (work / "runs" / f"{key}_failure" / "pile_speed.png").write_bytes(b"\x89PNG picture")
+    record = {"kind": "run", "name": run.name, "key": key, "spec": {"replica": 0,
+                                                                     "duration": 180.0},
+              "start_key": paper_design.start_key(design, run.start), "status": "unstable",
+              "wall_s": 420.0, "cpu_s": 400.0, "dt_s": 0.011, "particles_start": 17500,
+              "start_time_s": 8.008, "unstable_dem_time_s": 26.246,
+              "unstable_in_control_step": 18, "unstable_reason": "an overlap of 0.599",
+              "failure_picture": f"runs/{key}_failure/pile_speed.png"}
+    (work / "runs" / f"{key}.json").write_text(json.dumps(record))
+    manifest = paper_design.export(design, work, data)
+    assert manifest["runs_done"] == 0 and [r["key"] for r in manifest["runs_unstable"]] == [key]
+    exported = manifest["runs_unstable"][0]
+    assert exported["failure_picture"] == f"failures/{run.name}_speed.png"
+    assert (data / exported["failure_picture"]).read_bytes() == b"\x89PNG picture"
+    assert not list((data / "states").glob("*.npz"))  # no start state for a run that failed
+    again = paper_design.export(design, tmp_path / "gone", data)  # kept without the work dir
+    assert [r["key"] for r in again["runs_unstable"]] == [key]
+    scores = score_dem_method(data, HELDOUT)
+    failed = scores["failed"]["heldout_q1200"]
+    assert scores["scenes"] == {}
+    assert failed["after_s"] == pytest.approx(18.238)
+    assert failed["method_cost"]["cpu_s_per_simulated_s"] == pytest.approx(400.0 / 18.238)
+    assert failed["picture"] == str(data / f"failures/{run.name}_speed.png")
