@@ -234,7 +234,7 @@ class RomStorage(StorageModel):
         self.transport, self.packing = transport, packing
         self.fill = float(check_finite_range("fill", fill, 0.0, 1.0, low_open=True))
         self.relax = float(check_finite_range("relax", relax, 0.0, 1.0, low_open=True))
-        self._faces = None  # the projected face velocities (transport="projected")
+        self._faces = None  # the projected face velocities (any transport but "repack")
         if fallback not in FALLBACKS:
             raise ValidationError("fallback", f"one of {FALLBACKS}", f"got {fallback!r}")
         if surface not in SURFACES:
@@ -424,8 +424,8 @@ class RomStorage(StorageModel):
 
     def _refresh_field(self, t: float, rate: float):
         """The flow ``(field, faces)``, predicted again every ``update_interval`` or on
-        a new rate (``faces``: the projected face velocities, None unless
-        ``transport="projected"``; ``field`` is then their cell-centred mean)."""
+        a new rate (``faces``: the projected face velocities, None with
+        ``transport="repack"``; otherwise ``field`` is their cell-centred mean)."""
         if (self._field is None or t - self._field_time >= self.update_interval - 1e-9
                 or rate != self._field_rate):
             mass = mass_field(self.model.grid, self._pos, self._mass)
