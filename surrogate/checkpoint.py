@@ -38,10 +38,11 @@ import numpy as np
 from cosim.errors import ValidationError
 
 FORMAT = "minetwin-stockpile-checkpoint"
-VERSION = 3
+VERSION = 4
 """Raised whenever the state a storage model keeps changes, so that a checkpoint
 written by an earlier MineTwin is refused by name instead of resuming a model
-that lacks some of its state (3: the ROM's stacking order and move interval)."""
+that lacks some of its state (3: the ROM's stacking order and move interval;
+4: the ROM's transport, packing and projected face velocities)."""
 ALLOWED_PACKAGES = ("cosim", "surrogate")
 """Only instances of classes defined in these packages are rebuilt."""
 NUMERIC_KINDS = "biuf?"

@@ -43,6 +43,13 @@ def register(subparsers) -> None:
     evaluate.add_argument("--surface", choices=("dem", "rule"), default="dem",
                           help="the ROM's surface layer: resolved DEM impact (default) or the "
                                "sandpile rule alone")
+    evaluate.add_argument("--transport", choices=("balanced", "projected", "repack"),
+                          default=None,
+                          help="the ROM's bulk transport (RomStorage's transport; default: "
+                               "the storage's default)")
+    evaluate.add_argument("--packing", choices=("avalanche", "column", "none"), default=None,
+                          help="the ROM's packing after each move (RomStorage's packing; "
+                               "default: avalanche)")
     _model_options(evaluate)
     evaluate.set_defaults(handler=run_evaluate)
     design = sub.add_parser(
@@ -138,7 +145,10 @@ def run_evaluate(args) -> int:
             data = Path(args.out) / "scenes"
     with executors.make(args) as executor:  # the held-out scenes are scored in parallel
         summary = evaluate(model, data, progress=_progress,
-                           rom_options={"surface": args.surface}, executor=executor)
+                           rom_options={"surface": args.surface,
+                                        **{k: getattr(args, k) for k in ("transport", "packing")
+                                           if getattr(args, k) is not None}},
+                           executor=executor)
     # the file scored, so that `fidelity calibrate` ties the ROM card to it
     model_file = Path(args.model) if args.model else data / "rom_model.npz"
     summary["model_sha256"] = hashlib.sha256(model_file.read_bytes()).hexdigest()

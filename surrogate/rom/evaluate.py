@@ -390,11 +390,12 @@ def rom_numerical_dispersivity(model: RomModel, directory, samples: dict,
     The ROM's own scheme already scatters particles about the mean flow: the
     column re-packing (``surface.settle``) moves a particle up or down by the
     mass of every particle that enters or leaves the column below it, the
-    avalanches and the feeder move single particles. Measured as
+    avalanches and the feeder move single particles (on the paper design the
+    avalanches dominate: surrogate/rom/README.md). Measured as
     ``dispersion.dispersion_fit`` measures the DEM (pairs of bulk snapshots
     ``doe.VELOCITY_WINDOW`` apart, one per ``doe.CONTROL_STEP``), on every
-    training run: the ROM (``model`` with dispersivity 0, default surface
-    layer, generator seeded ``seed``) starts from the run's first sampled mass
+    training run: the ROM (``model`` with dispersivity 0, ``RomStorage``'s
+    default surface layer, transport and packing, generator seeded ``seed``) starts from the run's first sampled mass
     field (particles drawn from the masses the run's DEM discharged,
     ``_training_pile``), is driven at the run's commanded discharge rate and
     mean inflow rate for as many seconds as the run was sampled, and its fits are

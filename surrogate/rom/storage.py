@@ -12,15 +12,21 @@ One step of ``dt`` [s] is split into substeps of at most ``max_step`` [s]:
 1. every ``update_interval`` [s] (and whenever the discharge rate changes)
    the mass field M of the held particles is sampled on the model grid and
    the velocity field is predicted, v = ROM(M, q_out, q_in), with q_in the
-   inflow rate [kg/s] averaged over the last ``inflow_window`` seconds;
+   inflow rate [kg/s] averaged over the last ``inflow_window`` seconds; the
+   regressed field is not mass-conserving, so with ``transport="balanced"``
+   (default) it is projected on the grid onto the nearest field that keeps
+   the settled bulk at its density, with the feeder as its sink and the
+   bulk's volume held (``surrogate.rom.transport``);
 2. once ``move_interval`` [s] has passed since they last moved, particles
-   are advected over that time by v (``surrogate.rom.advect``), take a random
+   are advected over that time by v (the projected face velocities,
+   ``surrogate.rom.transport.advect_faces``; with ``transport="repack"`` the
+   cell-centred prediction, ``surrogate.rom.advect``), take a random
    step of the bulk's dispersion about the mean flow, D = alpha |v| with
    the dispersivity alpha measured on the training DEM
    (``surrogate.rom.dispersion``), then the bulk is packed again
-   (``surrogate.rom.surface.settle``: angle-of-repose avalanches, columns
-   re-stacked at the bulk density; the regressed field is not divergence
-   free, so advection alone would compact the pile);
+   (``packing``; default ``surrogate.rom.surface.settle``: angle-of-repose
+   avalanches, columns re-stacked at the bulk density, which also takes up
+   what the projection leaves to the surface cells);
 3. the outlet: the feeder's mass credit grows by q_out * h and whole
    particles leave while their mass fits in the credit (the credit rule of
    ``cosim.storage.StorageModel``), so the discharged mass follows
@@ -95,6 +101,24 @@ surface_config : DemConfig or dict or str, optional
 surface_dt_safety_factor : float, optional
     Surface-layer time step = contact time / this (default: the surface
     DEM's own ``dt_safety_factor``; see ``surrogate.rom.surface_dem``).
+transport : {"balanced", "projected", "repack"}
+    Bulk transport (default "balanced"): the predicted field projected onto a
+    mass-conserving one (``surrogate.rom.transport.project``) whose free
+    surface carries the predicted inward flux scaled so the bulk keeps its
+    volume ("balanced", ``free_surface="flux"``) or is held at potential 0
+    ("projected", ``free_surface="potential"``); "repack": the prediction as
+    it is, the packing undoing its compaction (the scheme before the
+    projection). On the paper-scale held-out scenes: surrogate/rom/README.md.
+packing : {"avalanche", "column", "none"}
+    After each move (default "avalanche"): ``settle`` with angle-of-repose
+    avalanches, ``settle`` without them (columns re-stacked in their height
+    order), or nothing.
+fill : float
+    Least fraction of a full cell's mass that makes a grid cell bulk in the
+    projection [-] (default ``surrogate.rom.transport.FILL`` = 0.9).
+relax : float
+    Fraction of the way to its packed height a particle moves at each
+    packing (default 1, in (0, 1]; ``settle``'s ``relax``).
 """
 
 from __future__ import annotations
@@ -117,6 +141,7 @@ from surrogate.rom.model import OutOfTrainingRange, RomModel
 from surrogate.rom.surface import (column_width, deposit, feeder_take, settle,
                                    surface_heights)
 from surrogate.rom.surface_dem import SurfaceDem
+from surrogate.rom.transport import FILL, advect_faces, centred, project
 
 DEFAULT_MODEL = Path(__file__).parent / "data" / "paper_rom.npz"
 """The shipped paper-scale ROM (``minetwin rom train`` on the committed paper design;
@@ -133,6 +158,12 @@ FALLBACKS = (None, "dem")
 
 SURFACES = ("dem", "rule")
 """Accepted values of ``RomStorage(surface=...)``."""
+
+TRANSPORTS = ("repack", "projected", "balanced")
+"""Accepted values of ``RomStorage(transport=...)``."""
+
+PACKINGS = ("avalanche", "column", "none")
+"""Accepted values of ``RomStorage(packing=...)``."""
 
 
 @numba.njit(cache=True)
@@ -192,8 +223,18 @@ class RomStorage(StorageModel):
                  move_interval: float = doe.CONTROL_STEP, inflow_window: float = 30.0,
                  rng: np.random.Generator | None = None,
                  fallback: str | None = None, fallback_config=None, surface: str = "dem",
-                 surface_config=None, surface_dt_safety_factor: float | None = None):
+                 surface_config=None, surface_dt_safety_factor: float | None = None,
+                 transport: str = "balanced", packing: str = "avalanche", fill: float = FILL,
+                 relax: float = 1.0):
         super().__init__(rng=rng)
+        if transport not in TRANSPORTS:
+            raise ValidationError("transport", f"one of {TRANSPORTS}", f"got {transport!r}")
+        if packing not in PACKINGS:
+            raise ValidationError("packing", f"one of {PACKINGS}", f"got {packing!r}")
+        self.transport, self.packing = transport, packing
+        self.fill = float(check_finite_range("fill", fill, 0.0, 1.0, low_open=True))
+        self.relax = float(check_finite_range("relax", relax, 0.0, 1.0, low_open=True))
+        self._faces = None  # the projected face velocities (any transport but "repack")
         if fallback not in FALLBACKS:
             raise ValidationError("fallback", f"one of {FALLBACKS}", f"got {fallback!r}")
         if surface not in SURFACES:
@@ -363,8 +404,12 @@ class RomStorage(StorageModel):
         (``OutOfTrainingRange``) and its message kept in ``out_of_range``;
         ``out_of_range_now`` names the inputs outside at the latest check.
         """
+        return self._predicted(t, discharge_rate, mass_field(self.model.grid, self._pos,
+                                                             self._mass))
+
+    def _predicted(self, t: float, discharge_rate: float, mass: np.ndarray) -> np.ndarray:
+        """``velocity_field`` for the mass field ``mass`` (ny, nx) [kg] of the held bulk."""
         model = self.model
-        mass = mass_field(model.grid, self._pos, self._mass)
         inflow = self.inflow_rate(t)
         if t >= self._next_range_check or discharge_rate != self._field_rate:
             self._next_range_check = t + RANGE_CHECK_INTERVAL
@@ -377,14 +422,28 @@ class RomStorage(StorageModel):
                     warnings.warn(message, OutOfTrainingRange, stacklevel=4)
         return model.predict(mass, discharge_rate, inflow, check=False)
 
-    def _refresh_field(self, t: float, rate: float) -> np.ndarray:
-        """The velocity field, predicted again every ``update_interval`` or on a new rate."""
+    def _refresh_field(self, t: float, rate: float):
+        """The flow ``(field, faces)``, predicted again every ``update_interval`` or on
+        a new rate (``faces``: the projected face velocities, None with
+        ``transport="repack"``; otherwise ``field`` is their cell-centred mean)."""
         if (self._field is None or t - self._field_time >= self.update_interval - 1e-9
                 or rate != self._field_rate):
-            self._field = self.velocity_field(t, rate)
+            mass = mass_field(self.model.grid, self._pos, self._mass)
+            self._field = self._predicted(t, rate, mass)
+            if self.transport != "repack":
+                self._faces = self._project(self._field, mass, rate)
+                self._field = centred(*self._faces)
             self._field_time, self._field_rate = t, rate
             self._bulk_in_store = False
-        return self._field
+        return self._field, self._faces
+
+    def _project(self, field, mass, rate: float):
+        """The mass-conserving face velocities nearest to ``field`` (``transport``),
+        the feeder drawing across its opening by the field's downward speed in the
+        bottom row."""
+        draw = np.maximum(-field[0, :, 1], 0.0)
+        return project(field, mass, self.model.grid, self.container, rate, draw, self.fill,
+                       free_surface="flux" if self.transport == "balanced" else "potential")
 
     def _keep(self, keep: np.ndarray) -> None:
         """Keep the bulk particles where ``keep`` is true (in their order)."""
@@ -392,21 +451,34 @@ class RomStorage(StorageModel):
         self._ids, self._mass, self._pos = self._ids[:kept], self._mass[:kept], self._pos[:kept]
         self._order = _renumbered(self._order, keep)
 
-    def _move(self, field, h: float, position: np.ndarray, mass: np.ndarray,
+    def _move(self, flow, h: float, position: np.ndarray, mass: np.ndarray,
               dispersion: bool = True, hint=None) -> np.ndarray:
-        """Advect ``position`` in place by ``field`` over ``h`` [s], let it disperse
-        about the mean flow (``surrogate.rom.dispersion``, the model's measured
-        dispersivity; left out with ``dispersion=False``), then pack the bulk.
-        Returns the stacking order (``settle``; ``hint``: the previous one)."""
+        """Advect ``position`` in place by ``flow`` (``_refresh_field``'s ``(field,
+        faces)``) over ``h`` [s], let it disperse about the mean flow
+        (``surrogate.rom.dispersion``, the model's measured dispersivity; left out
+        with ``dispersion=False``), then pack the bulk (``packing``). Returns the
+        stacking order (``settle``; ``hint``: the previous one)."""
         grid, c = self.model.grid, self.container
+        field, faces = flow
         # substeps keep each move below half a cell (CFL-like)
-        substeps = max(1, int(np.ceil(h * np.abs(field).max() / (0.5 * min(grid.dx, grid.dy)))))
-        advect(position, field, grid.x_min, grid.y_min, grid.dx, grid.dy, h, substeps,
-               c.x_min, c.x_max, c.floor)
+        if faces is None:
+            speed = np.abs(field).max()
+        else:
+            speed = max(np.abs(faces[0]).max(), np.abs(faces[1]).max())
+        substeps = max(1, int(np.ceil(h * speed / (0.5 * min(grid.dx, grid.dy)))))
+        if faces is None:
+            advect(position, field, grid.x_min, grid.y_min, grid.dx, grid.dy, h, substeps,
+                   c.x_min, c.x_max, c.floor)
+        else:
+            advect_faces(position, faces[0], faces[1], grid.x_min, grid.y_min, grid.dx,
+                         grid.dy, h, substeps, c.x_min, c.x_max, c.floor)
         if dispersion:
             disperse(position, field, grid, self.model.dispersivity, h, self.rng,
                      c.x_min, c.x_max, c.floor)
-        return settle(c, self._width, position, mass, hint=hint)
+        if self.packing == "none":
+            return hint
+        return settle(c, self._width, position, mass, hint=hint,
+                      sweeps=20 if self.packing == "avalanche" else 0, relax=self.relax)
 
     def _nearest_first(self, position, count_hint: int) -> np.ndarray:
         c = self.container
@@ -586,11 +658,18 @@ class RomStorage(StorageModel):
         order = self._order
         substeps = max(1, int(np.ceil(horizon / self.max_step)))
         h = horizon / substeps
-        field = self._field if self._field is not None else self.velocity_field(0.0, rate)
+        if self._field is not None:
+            flow = (self._field, self._faces)
+        else:
+            field = self.velocity_field(0.0, rate)
+            flow = (field, None)
+            if self.transport != "repack":
+                faces = self._project(field, mass_field(self.model.grid, position, mass), rate)
+                flow = (centred(*faces), faces)
         for _ in range(substeps):
             if index.size == 0:
                 break
-            order = self._move(field, h, position, mass, dispersion=False, hint=order)
+            order = self._move(flow, h, position, mass, dispersion=False, hint=order)
             credit += rate * h
             taken, credit = self._take(position, mass, credit, drained)
             if taken.size:

@@ -136,7 +136,8 @@ def _sort_into_columns(position, x_min, width, columns, hint, column, order, sta
 
 
 @numba.njit(cache=True)
-def _settle(position, mass, x_min, width, columns, floor, areal_density, max_drop, sweeps, hint):
+def _settle(position, mass, x_min, width, columns, floor, areal_density, max_drop, sweeps, hint,
+            relax):
     n = position.shape[0]
     column = np.empty(n, np.int64)
     sorted_ = np.empty(n, np.int64)
@@ -189,7 +190,10 @@ def _settle(position, mass, x_min, width, columns, floor, areal_density, max_dro
         for i in range(filled[c]):
             p = stack[c, i]
             rise = mass[p] / (areal_density * width)
-            position[p, 1] = top + 0.5 * rise
+            if relax == 1.0:
+                position[p, 1] = top + 0.5 * rise
+            else:
+                position[p, 1] += relax * (top + 0.5 * rise - position[p, 1])
             top += rise
             sorted_[k] = p
             k += 1
@@ -197,7 +201,7 @@ def _settle(position, mass, x_min, width, columns, floor, areal_density, max_dro
 
 
 def settle(container: Container, width: float, position: np.ndarray, mass,
-           sweeps: int = 20, hint=None) -> np.ndarray:
+           sweeps: int = 20, hint=None, relax: float = 1.0) -> np.ndarray:
     """Pack the bulk in place: angle-of-repose avalanching, then packed columns.
 
     The advected field is a regression, not divergence free, so advection
@@ -209,6 +213,13 @@ def settle(container: Container, width: float, position: np.ndarray, mass,
     ``sweeps`` times, the top particle of every column steeper than the angle
     of repose against a neighbour slides onto that neighbour (surface
     avalanches into the crater above the funnel).
+
+    With ``relax`` [-] (default 1) below 1 each particle moves only that
+    fraction of the way to its packed height: a light packing that, without
+    avalanches (``sweeps=0``), keeps every column's height order (the new
+    heights are a convex combination of two sequences that rise along it) and
+    lets a density error decay over about 1 / relax calls instead of undoing
+    it at once.
 
     Returns the stacking order (particle indices column by column, bottom to
     top). Passed back as ``hint`` at the next call it makes the sort linear in
@@ -224,7 +235,7 @@ def settle(container: Container, width: float, position: np.ndarray, mass,
                          f"got {hint.size} entries")
     return _settle(position, np.ascontiguousarray(mass, dtype=np.float64), container.x_min,
                    width, columns, container.floor, container.areal_density,
-                   np.tan(container.repose_angle) * width, int(sweeps), hint)
+                   np.tan(container.repose_angle) * width, int(sweeps), hint, float(relax))
 
 
 @numba.njit(cache=True)
