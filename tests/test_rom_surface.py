@@ -90,17 +90,19 @@ def _sink_model() -> RomModel:
         np.array(masses), np.array(q_out), np.array(q_in), np.array(velocities))
 
 
-def _run(model, seed):
-    model.dispersivity = 0.02  # the random walk about the mean flow runs too
+def _run(model, seed, steps=30, **storage_options):
+    """A heap of 256 kg particles fed 2 x 100 kg and discharged at 200 kg/s each
+    second for ``steps`` s: the store, the storage, the ids received and left."""
     store = ParticleStore(capacity=4096)
-    storage = RomStorage(model, rng=np.random.default_rng(seed)).bind(store, 1)
+    storage = RomStorage(model, rng=np.random.default_rng(seed),
+                         **storage_options).bind(store, 1)
     gx, gy = np.meshgrid(np.arange(-7.8, 8, 0.4), np.arange(0.2, 6, 0.4))
     inside = gy < 5.5 - 0.6 * np.abs(gx)
     ids = store.add(mass=np.full(inside.sum(), 256.0), f=sizes.swebrec(), grade=0.3,
                     hardness=1.0, owner=1)
     storage.place(ids, np.column_stack((gx[inside], gy[inside])))
     received, left = [ids], []
-    for k in range(30):
+    for k in range(steps):
         new = store.add(mass=np.full(2, 100.0), f=sizes.swebrec(), grade=0.7, hardness=2.0,
                         owner=1)
         storage.receive(new, float(k))
@@ -114,6 +116,7 @@ def _run(model, seed):
 @pytest.mark.filterwarnings("ignore::surrogate.rom.model.OutOfTrainingRange")
 def test_rom_with_the_surface_dem_and_dispersion_conserves_ids_and_mass_and_repeats_itself():
     model = _sink_model()
+    model.dispersivity = 0.02  # the random walk about the mean flow runs too
     store, storage, received, left = _run(model, seed=5)
     assert storage.surface_dem is not None and storage.surface == "dem"
     held = storage.held_ids()

@@ -123,31 +123,12 @@ def test_bad_transport_options_are_refused_by_name():
 @pytest.mark.parametrize("transport, packing", [("balanced", "avalanche"),
                                                 ("projected", "column"), ("balanced", "none")])
 def test_the_projected_rom_conserves_ids_and_mass_and_repeats_itself(transport, packing):
-    from cosim import sizes
-    from cosim.particles import ParticleStore
-    from test_rom_surface import _sink_model
+    from test_rom_surface import _run, _sink_model
 
     model = _sink_model()
 
     def run(seed):
-        store = ParticleStore(capacity=4096)
-        storage = RomStorage(model, rng=np.random.default_rng(seed), transport=transport,
-                             packing=packing).bind(store, 1)
-        gx, gy = np.meshgrid(np.arange(-7.8, 8, 0.4), np.arange(0.2, 6, 0.4))
-        inside = gy < 5.5 - 0.6 * np.abs(gx)
-        ids = store.add(mass=np.full(inside.sum(), 256.0), f=sizes.swebrec(), grade=0.3,
-                        hardness=1.0, owner=1)
-        storage.place(ids, np.column_stack((gx[inside], gy[inside])))
-        received, left = [ids], []
-        for k in range(20):
-            new = store.add(mass=np.full(2, 100.0), f=sizes.swebrec(), grade=0.7,
-                            hardness=2.0, owner=1)
-            storage.receive(new, float(k))
-            received.append(new)
-            leaving = storage.step(float(k), 1.0, 200.0)
-            store.set_owner(store.slots(leaving), 2, k + 1.0)
-            left.append(leaving)
-        return store, storage, np.concatenate(received), np.concatenate(left)
+        return _run(model, seed, steps=20, transport=transport, packing=packing)
 
     store, storage, received, left = run(3)
     held = storage.held_ids()
