@@ -26,14 +26,14 @@ def built_fmus():
 
 
 @pytest.fixture
-def no_leftover_folders():
-    """Fails the test if an extracted FMU folder stays in the temporary directory."""
-    def ours():
-        return set(Path(tempfile.gettempdir()).glob("minetwin-fmu-*"))
-
-    before = ours()
+def no_leftover_folders(tmp_path_factory, monkeypatch):
+    """Fails the test if an extracted FMU folder stays in the temporary directory.
+    The test gets a temporary directory of its own: in the shared one, another
+    process's FMU (a second test run on the machine) may be extracted meanwhile."""
+    private = tmp_path_factory.mktemp("tempdir")
+    monkeypatch.setattr(tempfile, "tempdir", str(private))
     yield
-    assert ours() - before == set()
+    assert list(private.glob("minetwin-fmu-*")) == []
 
 
 def platform(fmi):
