@@ -39,14 +39,17 @@ def is_heldout_data(data) -> bool:
     return name in paper_design.DESIGNS and paper_design.get_design(name).keep_start_states
 
 
-def _scenes(records: list) -> dict:
-    """Finished replicas by scene (the run's name without ``_r<replica>``), ordered
-    by replica number."""
+def scene_of(record: dict) -> str:
+    """The scene a held-out run's record belongs to: its name without ``_r<replica>``."""
+    return record["name"].removesuffix(f"_r{record['spec']['replica']}")
+
+
+def finished_scenes(records: list) -> dict:
+    """Finished replicas by scene (``scene_of``), ordered by replica number."""
     scenes = {}
     for record in sorted(records, key=lambda r: r["spec"]["replica"]):
         if record.get("status") == "done":
-            scene = record["name"].removesuffix(f"_r{record['spec']['replica']}")
-            scenes.setdefault(scene, []).append(record)
+            scenes.setdefault(scene_of(record), []).append(record)
     return scenes
 
 
@@ -82,7 +85,7 @@ def write_layout(data, out, progress=None) -> dict:
     manifest = json.loads((data / "manifest.json").read_text())
     scenes, skipped = [], {}
     names = replica_names(DEM_REPLICAS)
-    for scene, records in _scenes(manifest["runs"]).items():
+    for scene, records in finished_scenes(manifest["runs"]).items():
         if len(records) < 2:
             skipped[scene] = f"{len(records)} of {DEM_REPLICAS} replicas finished (2 needed)"
             continue

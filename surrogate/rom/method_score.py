@@ -26,6 +26,7 @@ import numpy as np
 
 from cosim.errors import ValidationError
 from surrogate.rom.evaluate import OUTFLOW_KEYS, ensemble_score, noise_floor
+from surrogate.rom.heldout_layout import finished_scenes, scene_of
 
 
 def _done_runs(data: Path) -> dict:
@@ -35,15 +36,9 @@ def _done_runs(data: Path) -> dict:
         raise ValidationError("--data", "an exported design folder with manifest.json "
                               "(`minetwin rom design ... --export`)", f"{data} has none")
     records = json.loads(manifest.read_text())
-    scenes = {}
-    for record in sorted(records["runs"], key=lambda r: r["spec"]["replica"]):
-        if record.get("status") == "done":
-            scene = record["name"].removesuffix(f"_r{record['spec']['replica']}")
-            scenes.setdefault(scene, []).append(record)
-    unstable = {record["name"].removesuffix(f"_r{record['spec']['replica']}"): record
-                for record in records.get("runs_unstable", [])}
+    unstable = {scene_of(record): record for record in records.get("runs_unstable", [])}
     return {"design": records.get("design"), "dem_config": records.get("dem_config", {}),
-            "scenes": scenes, "unstable": unstable}
+            "scenes": finished_scenes(records["runs"]), "unstable": unstable}
 
 
 def _outflow(data: Path, record: dict) -> dict:
