@@ -95,7 +95,7 @@ def score_dem_method(method_data, reference_data) -> dict:
             "tracking_error_dem_noise_floor": floor["tracking_error"],
             "dem_noise_floor_spread": floor["tracking_error_spread"],
             "grade_error": scores["grade_error"], "hardness_error": scores["hardness_error"],
-            "method_cost": _cost(runs[:1]), "explicit_cost": _cost(replicas),
+            "method_cost": _cost(runs[:1]),
             "method_mass_balance_error": float(runs[0]["mass_balance_error"]),
             "explicit_replicas": [r["name"] for r in replicas],
             "simulated_s": t1 - t0}
