@@ -119,6 +119,17 @@ fill : float
 relax : float
     Fraction of the way to its packed height a particle moves at each
     packing (default 1, in (0, 1]; ``settle``'s ``relax``).
+velocity_model : {"regressed", "kinematic"}
+    The field the bulk moves by, before the transport makes it
+    mass-conserving (default "regressed"): the model's POD/ridge prediction
+    from the mass field and the rates, or the kinematic funnel flow of
+    Nedderman and Tuzun (1979) above the feeder for its discharge rate
+    (``surrogate.rom.kinematic``; the model's training ranges are still
+    checked). On the paper-scale held-out scenes: surrogate/rom/README.md.
+diffusion_length : float
+    The kinematic model's diffusion length B [m] (default
+    ``surrogate.rom.kinematic.DIFFUSION_LENGTH`` = 1.06 m, fitted on the
+    paper-scale training design); used with ``velocity_model="kinematic"``.
 """
 
 from __future__ import annotations
@@ -137,6 +148,8 @@ from surrogate.rom.advect import advect, interpolate, write_positions
 from surrogate.rom.dispersion import disperse
 from surrogate.rom.grid import mass_field, mean_field
 from surrogate.rom.handover import drop_heights
+from surrogate.rom.kinematic import DIFFUSION_LENGTH
+from surrogate.rom.kinematic import velocity_field as kinematic_field
 from surrogate.rom.model import OutOfTrainingRange, RomModel
 from surrogate.rom.surface import (column_width, deposit, feeder_take, settle,
                                    surface_heights)
@@ -164,6 +177,9 @@ TRANSPORTS = ("repack", "projected", "balanced")
 
 PACKINGS = ("avalanche", "column", "none")
 """Accepted values of ``RomStorage(packing=...)``."""
+
+VELOCITY_MODELS = ("regressed", "kinematic")
+"""Accepted values of ``RomStorage(velocity_model=...)``."""
 
 
 @numba.njit(cache=True)
@@ -225,8 +241,15 @@ class RomStorage(StorageModel):
                  fallback: str | None = None, fallback_config=None, surface: str = "dem",
                  surface_config=None, surface_dt_safety_factor: float | None = None,
                  transport: str = "balanced", packing: str = "avalanche", fill: float = FILL,
-                 relax: float = 1.0):
+                 relax: float = 1.0, velocity_model: str = "regressed",
+                 diffusion_length: float = DIFFUSION_LENGTH):
         super().__init__(rng=rng)
+        if velocity_model not in VELOCITY_MODELS:
+            raise ValidationError("velocity_model", f"one of {VELOCITY_MODELS}",
+                                  f"got {velocity_model!r}")
+        self.velocity_model = velocity_model
+        self.diffusion_length = float(check_finite_range("diffusion_length", diffusion_length,
+                                                         0.0, low_open=True, unit="m"))
         if transport not in TRANSPORTS:
             raise ValidationError("transport", f"one of {TRANSPORTS}", f"got {transport!r}")
         if packing not in PACKINGS:
@@ -420,7 +443,17 @@ class RomStorage(StorageModel):
                 if name not in self.out_of_range:
                     self.out_of_range[name] = message
                     warnings.warn(message, OutOfTrainingRange, stacklevel=4)
-        return model.predict(mass, discharge_rate, inflow, check=False)
+        return self.predicted_field(mass, discharge_rate, inflow)
+
+    def predicted_field(self, mass: np.ndarray, discharge_rate: float,
+                        inflow_rate: float) -> np.ndarray:
+        """The field [m/s] (ny, nx, 2) of ``velocity_model`` for the mass field ``mass``
+        (ny, nx) [kg] and the rates [kg/s], before the transport projects it (no
+        range check)."""
+        if self.velocity_model == "kinematic":
+            return kinematic_field(self.model.grid, self.container, discharge_rate,
+                                   self.diffusion_length)
+        return self.model.predict(mass, discharge_rate, inflow_rate, check=False)
 
     def _refresh_field(self, t: float, rate: float):
         """The flow ``(field, faces)``, predicted again every ``update_interval`` or on

@@ -1,0 +1,137 @@
+"""Kinematic model of the funnel flow above the feeder.
+
+Source: Nedderman and Tuzun (1979), "A kinematic model for the flow of
+granular materials", Powder Technology 22, 243-253 (also Nedderman 1992,
+"Statics and kinematics of granular materials", chapter 10): in slow flow
+towards an outlet, the horizontal velocity u is proportional to the
+horizontal gradient of the downward velocity w, u = B dw/dx, and continuity
+then gives the diffusion equation dw/dh = B d2w/dx2 in the height h above
+the outlet, with B the kinematic (diffusion) length, of the order of a few
+particle diameters.
+
+Equations (2-D plane, x horizontal, y up; the outlet a narrow slot at
+``Container.outlet_x`` on the floor ``Container.floor``; the settled bulk of
+areal density rho_A [kg/m^2]):
+
+- the outlet draws the volume flux Q' = q_out / rho_A [m^2/s] (q_out the
+  discharge rate [kg/s]);
+- w(x, h) = Q' / sqrt(4 pi B h) exp(-(x - x_o)^2 / (4 B h)) [m/s, down
+  positive] at height h = y - floor > 0 [m], the point-source solution, so
+  the integral of w over x is Q' at every height;
+- u(x, h) = B dw/dx = -(x - x_o) w / (2 h) [m/s]: du/dx = dw/dh, so the
+  field (u, -w) is divergence free;
+- the field does not depend on the pile's shape or on the inflow (the
+  free surface and the inflow are the surface layer's and the packing's
+  business); it vanishes when nothing is discharged.
+
+Parameter: the diffusion length B [m] (default ``DIFFUSION_LENGTH``, fitted
+by ``fit_diffusion_length`` on the paper-scale training design; the numbers
+and the command are in surrogate/rom/README.md, "What limits the accuracy
+now").
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+DIFFUSION_LENGTH = 1.06
+"""Kinematic diffusion length B [m]: the least-squares fit of the kinematic field to
+the DEM's velocity in the bulk of the paper-scale training design's discharging
+samples (``python -m surrogate.rom.kinematic --data surrogate/rom/data/paper_design``;
+about 3 mean particle diameters)."""
+
+BULK_FILL = 0.7
+"""Least fraction of a full cell's mass (rho_A dx dy) of the cells the fit compares [-]
+(the DEM's funnel core dilates to 0.8-0.9 of the settled density)."""
+
+LEAST_DISCHARGE = 100.0
+"""Least discharge rate [kg/s] of the samples the fit compares."""
+
+
+@numba.njit(cache=True)
+def _field(x, y, outlet_x, floor, flux, diffusion_length):
+    """The kinematic velocity (u, -w) [m/s] at the cell centres ``x`` (nx,),
+    ``y`` (ny,) [m]: (ny, nx, 2) (module docstring; 0 at or below the floor)."""
+    out = np.zeros((y.size, x.size, 2))
+    for j in range(y.size):
+        h = y[j] - floor
+        if h <= 0.0 or flux == 0.0:
+            continue
+        spread = 4.0 * diffusion_length * h
+        peak = flux / math.sqrt(math.pi * spread)
+        for i in range(x.size):
+            offset = x[i] - outlet_x
+            w = peak * math.exp(-offset * offset / spread)
+            out[j, i, 0] = -offset * w / (2.0 * h)
+            out[j, i, 1] = -w
+    return out
+
+
+def velocity_field(grid, container, discharge_rate: float,
+                   diffusion_length: float = DIFFUSION_LENGTH) -> np.ndarray:
+    """The kinematic velocity field [m/s] (ny, nx, 2) at the centres of ``grid``'s
+    cells for the feeder's ``discharge_rate`` [kg/s] (module docstring)."""
+    x, y = grid.centres()
+    flux = float(discharge_rate) / container.areal_density
+    return _field(x, y, float(container.outlet_x), float(container.floor), flux,
+                  float(diffusion_length))
+
+
+def fit_diffusion_length(directory, low: float = 0.1, high: float = 10.0,
+                         tolerance: float = 1e-3) -> dict:
+    """The diffusion length B [m] whose kinematic field is nearest, in least
+    squares over both components, to the DEM's velocity in the bulk cells (at
+    least ``BULK_FILL`` full) of the training samples of ``directory`` that
+    discharge at least ``LEAST_DISCHARGE``; golden-section search on log B in
+    [``low``, ``high``] to a relative ``tolerance``. Returns ``{"diffusion_length",
+    "rms_error", "rms_dem"}`` [m, m/s, m/s] (``rms_dem``: the DEM's own RMS speed
+    on those cells, the error of a field at rest) and ``"samples"``, ``"cells"``."""
+    from surrogate.rom import doe
+    from surrogate.rom.container import Container
+    from surrogate.rom.grid import Grid
+
+    meta = doe.read_meta(directory)
+    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
+    samples = doe.load_samples(directory)
+    used = samples["discharge_rate"] >= LEAST_DISCHARGE
+    rates = samples["discharge_rate"][used].astype(np.float64)
+    dem = samples["velocity"][used].astype(np.float64)
+    bulk = samples["mass"][used] >= BULK_FILL * container.areal_density * grid.dx * grid.dy
+    count = int(bulk.sum())
+
+    def mean_square(log_length: float) -> float:
+        # the field is linear in the rate: one field per unit rate, scaled per sample
+        unit = velocity_field(grid, container, 1.0, math.exp(log_length))
+        error = rates[:, None, None, None] * unit[None] - dem
+        return float((error ** 2).sum(axis=-1)[bulk].sum() / count)
+
+    ratio = 0.5 * (math.sqrt(5.0) - 1.0)
+    a, b = math.log(low), math.log(high)
+    c, d = b - ratio * (b - a), a + ratio * (b - a)
+    fc, fd = mean_square(c), mean_square(d)
+    while b - a > tolerance:
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - ratio * (b - a)
+            fc = mean_square(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + ratio * (b - a)
+            fd = mean_square(d)
+    best = 0.5 * (a + b)
+    return {"diffusion_length": math.exp(best), "rms_error": math.sqrt(mean_square(best)),
+            "rms_dem": math.sqrt(float((dem ** 2).sum(axis=-1)[bulk].sum() / count)),
+            "samples": int(used.sum()), "cells": count}
+
+
+if __name__ == "__main__":
+    import argparse
+    import json
+
+    parser = argparse.ArgumentParser(description="Fit the kinematic diffusion length B to a "
+                                                 "DEM training design (surrogate.rom.kinematic)")
+    parser.add_argument("--data", required=True, help="design folder (doe.json, train/*.npz)")
+    print(json.dumps(fit_diffusion_length(parser.parse_args().data), indent=1))
