@@ -50,6 +50,10 @@ def register(subparsers) -> None:
     evaluate.add_argument("--packing", choices=("avalanche", "column", "none"), default=None,
                           help="the ROM's packing after each move (RomStorage's packing; "
                                "default: avalanche)")
+    evaluate.add_argument("--velocity-model", choices=("regressed", "kinematic"), default=None,
+                          help="the field the ROM's bulk moves by (RomStorage's "
+                               "velocity_model): the model's regression or the kinematic "
+                               "funnel flow (default: regressed)")
     _model_options(evaluate)
     evaluate.set_defaults(handler=run_evaluate)
     design = sub.add_parser(
@@ -146,7 +150,8 @@ def run_evaluate(args) -> int:
     with executors.make(args) as executor:  # the held-out scenes are scored in parallel
         summary = evaluate(model, data, progress=_progress,
                            rom_options={"surface": args.surface,
-                                        **{k: getattr(args, k) for k in ("transport", "packing")
+                                        **{k: getattr(args, k)
+                                           for k in ("transport", "packing", "velocity_model")
                                            if getattr(args, k) is not None}},
                            executor=executor)
     # the file scored, so that `fidelity calibrate` ties the ROM card to it
