@@ -66,6 +66,11 @@ def test_the_fit_recovers_the_diffusion_length_of_its_data(tmp_path):
     assert fit["diffusion_length"] == pytest.approx(0.8, rel=2e-3)
     assert fit["rms_error"] < 1e-3 * fit["rms_dem"]
     assert fit["samples"] == 20  # the run at rest left out
+    runs = kinematic.compare_on_design(tmp_path, diffusion_length=0.8)
+    assert sorted(runs) == ["out2000", "out800"]
+    assert runs["out800"]["rel_error"]["kinematic"] < 1e-6
+    assert runs["out800"]["axis"]["kinematic"] == pytest.approx(runs["out800"]["axis"]["dem"],
+                                                                rel=1e-6)
 
 
 def test_the_storage_moves_its_bulk_by_the_kinematic_field_on_request():

@@ -127,6 +127,57 @@ def fit_diffusion_length(directory, low: float = 0.1, high: float = 10.0,
             "samples": int(used.sum()), "cells": count}
 
 
+AXIS_HALF_WIDTH = 3.0
+"""Half-width [m] about the outlet of the funnel's axis in ``compare_on_design``."""
+
+
+def compare_on_design(directory, model=None, diffusion_length: float = DIFFUSION_LENGTH) -> dict:
+    """The kinematic field (and ``model``'s regression, a ``RomModel``, if given)
+    against the DEM, run by run, over the training runs of ``directory`` that
+    discharge (samples of at least ``LEAST_DISCHARGE``): the time mean of the
+    downward speed over the run's cells that are at least ``BULK_FILL`` full in
+    90 % of its samples; ``rel_error`` the norm of its difference over those cells
+    relative to the DEM's, and ``axis`` its mean over the cells within
+    ``AXIS_HALF_WIDTH`` of the outlet per height [m] (rows the core fills)."""
+    from pathlib import Path
+
+    from surrogate.rom import doe
+    from surrogate.rom.container import Container
+    from surrogate.rom.grid import Grid
+
+    meta = doe.read_meta(directory)
+    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
+    samples = doe.load_samples(directory)
+    names = [f.stem for f in sorted(Path(directory, "train").glob("*.npz"))]
+    x, y = grid.centres()
+    axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
+    unit = velocity_field(grid, container, 1.0, diffusion_length)[..., 1]
+    out = {}
+    for number, name in enumerate(names):
+        used = (samples["run"] == number) & (samples["discharge_rate"] >= LEAST_DISCHARGE)
+        if not used.any():
+            continue
+        mass = samples["mass"][used]
+        kept = (mass >= BULK_FILL * container.areal_density * grid.dx * grid.dy).mean(0) >= 0.9
+        rates = samples["discharge_rate"][used].astype(np.float64)
+        fields = {"dem": -samples["velocity"][used][..., 1].mean(0),
+                  "kinematic": -rates.mean() * unit}
+        if model is not None:
+            fields["regressed"] = -np.mean([model.predict(m, q, i, check=False)[..., 1]
+                                            for m, q, i in zip(mass, rates,
+                                                               samples["inflow_rate"][used])],
+                                           axis=0)
+        rows = [j for j in range(grid.ny) if kept[j, axis].all()]
+        scale = float(np.linalg.norm(fields["dem"][kept]))
+        out[name] = {"samples": int(used.sum()), "discharge_rate": float(rates.mean()),
+                     "height": [float(y[j]) for j in rows],
+                     "rel_error": {k: float(np.linalg.norm((f - fields["dem"])[kept]) / scale)
+                                   for k, f in fields.items() if k != "dem"},
+                     "axis": {k: [float(f[j, axis].mean()) for j in rows]
+                              for k, f in fields.items()}}
+    return out
+
+
 if __name__ == "__main__":
     import argparse
     import json
@@ -134,4 +185,14 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description="Fit the kinematic diffusion length B to a "
                                                  "DEM training design (surrogate.rom.kinematic)")
     parser.add_argument("--data", required=True, help="design folder (doe.json, train/*.npz)")
-    print(json.dumps(fit_diffusion_length(parser.parse_args().data), indent=1))
+    parser.add_argument("--compare", metavar="MODEL", default=None,
+                        help="also compare the kinematic field at the default B and this "
+                             "ROM file's regression with the DEM, run by run "
+                             "(compare_on_design)")
+    args = parser.parse_args()
+    report = {"fit": fit_diffusion_length(args.data)}
+    if args.compare:
+        from surrogate.rom.model import RomModel
+
+        report["runs"] = compare_on_design(args.data, RomModel.load(args.compare))
+    print(json.dumps(report, indent=1))
