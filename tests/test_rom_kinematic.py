@@ -86,15 +86,50 @@ def test_the_storage_moves_its_bulk_by_the_kinematic_field_on_request():
                                                    1200.0, 0.9))
 
 
+def test_the_hybrid_takes_the_faster_downward_speed_above_the_feeder_zone_only():
+    grid = Grid(x_min=-10.0, x_max=10.0, y_min=0.0, y_max=8.0, nx=10, ny=8)  # 1 m rows
+    container = Container(x_min=-10.0, x_max=10.0, floor=0.0, outlet_x=0.0, inlet_x=0.0,
+                          areal_density=600.0, outlet_width=4.0, feeder_zone_height=1.5)
+    rng = np.random.default_rng(0)
+    regressed = rng.normal(0.0, 0.2, grid.shape + (2,))
+    kinematic_part = kinematic.velocity_field(grid, container, 1500.0, 1.0)
+    hybrid = kinematic.hybrid_field(regressed, kinematic_part, grid, container)
+    assert np.array_equal(hybrid[..., 0], regressed[..., 0])  # the regression's sideways flow
+    assert np.array_equal(hybrid[:2], regressed[:2])  # rows at 0.5 and 1.5 m: the feeder's
+    down, down_r, down_k = -hybrid[2:, :, 1], -regressed[2:, :, 1], -kinematic_part[2:, :, 1]
+    assert np.array_equal(down, np.maximum(down_r, down_k))
+    assert (down > down_r).any() and (down == down_r).any()
+    # a regression faster everywhere is left as it is; the inputs are not changed
+    fast = regressed.copy()
+    fast[..., 1] = -5.0
+    assert np.array_equal(kinematic.hybrid_field(fast, kinematic_part, grid, container), fast)
+    assert np.array_equal(fast[..., 1], np.full(grid.shape, -5.0))
+
+
+def test_the_storage_moves_its_bulk_by_the_hybrid_field_on_request():
+    with pytest.raises(ValidationError, match="diffusion_length"):
+        RomStorage(velocity_model="hybrid", diffusion_length=-1.0)
+    storage = RomStorage(velocity_model="hybrid", diffusion_length=0.9)
+    grid, container = storage.model.grid, storage.container
+    mass = np.full(grid.shape, 0.9 * container.areal_density * grid.dx * grid.dy)
+    expected = kinematic.hybrid_field(
+        storage.model.predict(mass, 1200.0, 600.0, check=False),
+        kinematic.velocity_field(grid, container, 1200.0, 0.9), grid, container)
+    assert np.array_equal(storage.predicted_field(mass, 1200.0, 600.0), expected)
+
+
 @pytest.mark.filterwarnings("ignore::surrogate.rom.model.OutOfTrainingRange")
-@pytest.mark.parametrize("packing", ["avalanche", "none"])
-def test_the_kinematic_rom_conserves_ids_and_mass_and_repeats_itself(packing):
+@pytest.mark.parametrize("velocity_model,packing", [("kinematic", "avalanche"),
+                                                    ("kinematic", "none"),
+                                                    ("hybrid", "avalanche")])
+def test_the_kinematic_and_hybrid_roms_conserve_ids_and_mass_and_repeat_themselves(
+        velocity_model, packing):
     from test_rom_surface import _run, _sink_model
 
     model = _sink_model()
 
     def run(seed):
-        return _run(model, seed, steps=20, velocity_model="kinematic", packing=packing)
+        return _run(model, seed, steps=20, velocity_model=velocity_model, packing=packing)
 
     store, storage, received, left = run(3)
     held = storage.held_ids()

@@ -50,10 +50,12 @@ def register(subparsers) -> None:
     evaluate.add_argument("--packing", choices=("avalanche", "column", "none"), default=None,
                           help="the ROM's packing after each move (RomStorage's packing; "
                                "default: avalanche)")
-    evaluate.add_argument("--velocity-model", choices=("regressed", "kinematic"), default=None,
+    evaluate.add_argument("--velocity-model", choices=("regressed", "kinematic", "hybrid"),
+                          default=None,
                           help="the field the ROM's bulk moves by (RomStorage's "
-                               "velocity_model): the model's regression or the kinematic "
-                               "funnel flow (default: regressed)")
+                               "velocity_model): the model's regression, the kinematic "
+                               "funnel flow or the regression sped up to the kinematic "
+                               "downward speed where that is faster (default: regressed)")
     _model_options(evaluate)
     evaluate.set_defaults(handler=run_evaluate)
     design = sub.add_parser(

@@ -119,17 +119,21 @@ fill : float
 relax : float
     Fraction of the way to its packed height a particle moves at each
     packing (default 1, in (0, 1]; ``settle``'s ``relax``).
-velocity_model : {"regressed", "kinematic"}
+velocity_model : {"regressed", "kinematic", "hybrid"}
     The field the bulk moves by, before the transport makes it
     mass-conserving (default "regressed"): the model's POD/ridge prediction
-    from the mass field and the rates, or the kinematic funnel flow of
+    from the mass field and the rates, the kinematic funnel flow of
     Nedderman and Tuzun (1979) above the feeder for its discharge rate
     (``surrogate.rom.kinematic``; the model's training ranges are still
-    checked). On the paper-scale held-out scenes: surrogate/rom/README.md.
+    checked), or "hybrid": the regression with its downward speed raised to
+    the kinematic one where that is faster, above the feeder's zone
+    (``surrogate.rom.kinematic.hybrid_field``).
+    On the paper-scale held-out scenes: surrogate/rom/README.md.
 diffusion_length : float
     The kinematic model's diffusion length B [m] (default
     ``surrogate.rom.kinematic.DIFFUSION_LENGTH`` = 1.06 m, fitted on the
-    paper-scale training design); used with ``velocity_model="kinematic"``.
+    paper-scale training design); used with ``velocity_model="kinematic"`` or
+    ``"hybrid"``.
 """
 
 from __future__ import annotations
@@ -148,7 +152,7 @@ from surrogate.rom.advect import advect, interpolate, write_positions
 from surrogate.rom.dispersion import disperse
 from surrogate.rom.grid import mass_field, mean_field
 from surrogate.rom.handover import drop_heights
-from surrogate.rom.kinematic import DIFFUSION_LENGTH
+from surrogate.rom.kinematic import DIFFUSION_LENGTH, hybrid_field
 from surrogate.rom.kinematic import velocity_field as kinematic_field
 from surrogate.rom.model import OutOfTrainingRange, RomModel
 from surrogate.rom.surface import (column_width, deposit, feeder_take, settle,
@@ -178,7 +182,7 @@ TRANSPORTS = ("repack", "projected", "balanced")
 PACKINGS = ("avalanche", "column", "none")
 """Accepted values of ``RomStorage(packing=...)``."""
 
-VELOCITY_MODELS = ("regressed", "kinematic")
+VELOCITY_MODELS = ("regressed", "kinematic", "hybrid")
 """Accepted values of ``RomStorage(velocity_model=...)``."""
 
 
@@ -450,10 +454,14 @@ class RomStorage(StorageModel):
         """The field [m/s] (ny, nx, 2) of ``velocity_model`` for the mass field ``mass``
         (ny, nx) [kg] and the rates [kg/s], before the transport projects it (no
         range check)."""
+        if self.velocity_model == "regressed":
+            return self.model.predict(mass, discharge_rate, inflow_rate, check=False)
+        kinematic = kinematic_field(self.model.grid, self.container, discharge_rate,
+                                    self.diffusion_length)
         if self.velocity_model == "kinematic":
-            return kinematic_field(self.model.grid, self.container, discharge_rate,
-                                   self.diffusion_length)
-        return self.model.predict(mass, discharge_rate, inflow_rate, check=False)
+            return kinematic
+        return hybrid_field(self.model.predict(mass, discharge_rate, inflow_rate, check=False),
+                            kinematic, self.model.grid, self.container)
 
     def _refresh_field(self, t: float, rate: float):
         """The flow ``(field, faces)``, predicted again every ``update_interval`` or on
