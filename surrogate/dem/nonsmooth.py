@@ -46,7 +46,16 @@ wall; n from j to i, t = (-n_y, n_x); gap g = |x_i - x_j| - r_i - r_j):
    ``solver_tolerance`` [m/s]. Warm start: the impulses of the previous step
    (kept per list entry in ``hn, ht, hr``) are applied before the first
    sweep, except for impacting contacts.
-6. ``x += h v+``; the feeders and the blow-up guard as in the explicit DEM.
+6. Missed contacts: a pair (or disk and wall) whose gap was too wide to
+   close at the disks' speeds before the solve (item 2 leaves it out) can
+   still close when the solve speeds a disk up, e.g. a disk at rest struck
+   by a column falling onto it. After the sweeps every list entry left out
+   is checked with the end-of-step velocities (``g + h u_n+ < 0``: it would
+   overlap); if any is, the step is solved again from the free velocities
+   with those entries as rows (at most ``MAX_RESOLVES`` times), so no
+   contact in the lists is passed unseen. ``stats[4]`` counts these
+   re-solves.
+7. ``x += h v+``; the feeders and the blow-up guard as in the explicit DEM.
 
 SPOOK: C. Lacoursiere (2007), "Ghosts and machines: regularized variational
 methods for interactive simulations of multibodies with dry frictional
@@ -80,6 +89,12 @@ from surrogate.dem.kernels import (
 S_EPS, S_TAU_STEPS, S_E, S_VIMP, S_ITER, S_TOL = range(6)
 N_SOLVER = 6
 
+MAX_RESOLVES = 3
+"""Re-solves of one step for missed contacts (module docstring, item 6)."""
+
+N_STATS = 5
+"""Length of the ``stats`` vector of ``run_steps``."""
+
 
 def solver_params(cfg) -> np.ndarray:
     """The ``solver`` vector of a ``DemConfig`` (module docstring)."""
@@ -96,10 +111,13 @@ def solver_params(cfg) -> np.ndarray:
 @njit(**HOT)
 def _gather_contacts(h, pos, vel, omega, radius, inv_mass, inv_inertia, start, nbr, hn, ht, hr,
                      wall_start, wall, wall_hn, wall_ht, wall_hr, walls, solver, c_i, c_j, c_slot,
-                     c_n, c_b, c_s, c_inv, c_pn, c_pt, c_pr, c_reff):
+                     c_n, c_b, c_s, c_inv, c_pn, c_pt, c_pr, c_reff, pair_row, wall_row):
     """Fill the contact rows of this step (module docstring, items 2-3) and
     apply the warm start; returns the number of rows. ``c_slot`` is the list
-    entry (pairs) or ``-1 - entry`` (walls); ``c_j`` is -1 for a wall."""
+    entry (pairs) or ``-1 - entry`` (walls); ``c_j`` is -1 for a wall.
+    ``pair_row`` / ``wall_row`` per list entry: 1 to make it a row whatever its
+    gap (a missed contact, item 6); on return 1 for every entry made a row, 0
+    for those left out."""
     eps = solver[S_EPS]
     tau = solver[S_TAU_STEPS] * h
     e = solver[S_E]
@@ -124,11 +142,13 @@ def _gather_contacts(h, pos, vel, omega, radius, inv_mass, inv_inertia, start, n
             un = (vel[i, 0] - vel[j, 0]) * nx_ + (vel[i, 1] - vel[j, 1]) * ny_
             # pairs that cannot meet within the step at their speeds are left out (their
             # impulses forgotten); a column falling as one still has all its rows
-            if g > 0.0 and g > h * (speed[i] + speed[j]) + 0.05 * min(ri, rj):
+            if (pair_row[p] == 0 and g > 0.0
+                    and g > h * (speed[i] + speed[j]) + 0.05 * min(ri, rj)):
                 hn[p] = 0.0
                 ht[p] = 0.0
                 hr[p] = 0.0
                 continue
+            pair_row[p] = 1
             c_i[m] = i
             c_j[m] = j
             c_slot[m] = p
@@ -156,11 +176,12 @@ def _gather_contacts(h, pos, vel, omega, radius, inv_mass, inv_inertia, start, n
             nx_ = dx / d
             ny_ = dy / d
             un = vel[i, 0] * nx_ + vel[i, 1] * ny_
-            if g > 0.0 and g > h * speed[i] + 0.05 * ri:
+            if wall_row[p] == 0 and g > 0.0 and g > h * speed[i] + 0.05 * ri:
                 wall_hn[p] = 0.0
                 wall_ht[p] = 0.0
                 wall_hr[p] = 0.0
                 continue
+            wall_row[p] = 1
             c_i[m] = i
             c_j[m] = -1
             c_slot[m] = -1 - p
@@ -273,6 +294,40 @@ def solve_pgs(m, c_i, c_j, c_n, c_b, c_s, c_inv, c_pn, c_pt, c_pr, c_reff, radiu
 
 
 @njit(**HOT)
+def _mark_missed(h, pos, vel, radius, start, nbr, wall_start, wall, walls, pair_row, wall_row):
+    """Mark the list entries left out of the rows that the end-of-step
+    velocities would make overlap (module docstring, item 6) with
+    ``pair_row`` / ``wall_row`` = 1; returns how many."""
+    missed = 0
+    for i in range(pos.shape[0]):
+        ri = radius[i]
+        for p in range(start[i], start[i + 1]):
+            if pair_row[p] != 0:
+                continue
+            j = nbr[p]
+            dx = pos[i, 0] - pos[j, 0]
+            dy = pos[i, 1] - pos[j, 1]
+            d = math.sqrt(dx * dx + dy * dy)
+            un = ((vel[i, 0] - vel[j, 0]) * dx + (vel[i, 1] - vel[j, 1]) * dy) / d
+            if d - ri - radius[j] + h * un < 0.0:
+                pair_row[p] = 1
+                missed += 1
+        for p in range(wall_start[i], wall_start[i + 1]):
+            if wall_row[p] != 0:
+                continue
+            w = wall[p]
+            cx, cy = _closest_on_segment(pos[i, 0], pos[i, 1], walls[w, 0], walls[w, 1],
+                                         walls[w, 2], walls[w, 3])
+            dx = pos[i, 0] - cx
+            dy = pos[i, 1] - cy
+            d = math.sqrt(dx * dx + dy * dy)
+            if d - ri + h * (vel[i, 0] * dx + vel[i, 1] * dy) / d < 0.0:
+                wall_row[p] = 1
+                missed += 1
+    return missed
+
+
+@njit(**HOT)
 def run_steps(n_steps, dt, time, pos, vel, omega, radius, inv_mass, inv_inertia, start, nbr, hn,
               ht, hr, wall_start, wall, wall_hn, wall_ht, wall_hr, walls, params, solver,
               ref_pos, half_skin, candidates, outlet_lo, outlet_hi, zone_top, rates, credits,
@@ -283,8 +338,9 @@ def run_steps(n_steps, dt, time, pos, vel, omega, radius, inv_mass, inv_inertia,
     blow-up guard), with the same return tuple. The lists must hold every
     pair a disk can reach in a step: a rebuild is asked for when a disk's
     displacement since the build plus its reach in the next step,
-    ``h (|v| + g h)``, exceeds ``half_skin``. ``stats`` accumulates
-    ``[steps, sweeps, rows, last residual velocity change [m/s]]``.
+    ``h (|v| + g h)``, exceeds ``half_skin``. ``stats`` (``N_STATS``)
+    accumulates ``[steps, sweeps, rows, last residual velocity change [m/s],
+    re-solves for missed contacts]``.
     """
     n = pos.shape[0]
     g = params[P_G]
@@ -305,16 +361,35 @@ def run_steps(n_steps, dt, time, pos, vel, omega, radius, inv_mass, inv_inertia,
     c_pt = np.empty(capacity)
     c_pr = np.empty(capacity)
     c_reff = np.empty(capacity)
+    pair_row = np.zeros(nbr.shape[0], np.int8)
+    wall_row = np.zeros(wall.shape[0], np.int8)
+    free_vel = np.empty_like(vel)
+    free_omega = np.empty_like(omega)
     n_removed = 0
     for step in range(n_steps):
         for i in range(n):
             vel[i, 1] -= g * dt
-        m = _gather_contacts(dt, pos, vel, omega, radius, inv_mass, inv_inertia, start, nbr, hn,
-                             ht, hr, wall_start, wall, wall_hn, wall_ht, wall_hr, walls, solver,
-                             c_i, c_j, c_slot, c_n, c_b, c_s, c_inv, c_pn, c_pt, c_pr, c_reff)
-        sweeps, change = solve_pgs(m, c_i, c_j, c_n, c_b, c_s, c_inv, c_pn, c_pt, c_pr, c_reff,
-                                   radius, vel, omega, inv_mass, inv_inertia, mu, mur,
-                                   iterations, tolerance)
+        free_vel[:] = vel
+        free_omega[:] = omega
+        pair_row[:] = 0
+        wall_row[:] = 0
+        for attempt in range(MAX_RESOLVES + 1):
+            if attempt:
+                vel[:] = free_vel
+                omega[:] = free_omega
+                stats[4] += 1.0
+            m = _gather_contacts(dt, pos, vel, omega, radius, inv_mass, inv_inertia, start, nbr,
+                                 hn, ht, hr, wall_start, wall, wall_hn, wall_ht, wall_hr, walls,
+                                 solver, c_i, c_j, c_slot, c_n, c_b, c_s, c_inv, c_pn, c_pt, c_pr,
+                                 c_reff, pair_row, wall_row)
+            sweeps, change = solve_pgs(m, c_i, c_j, c_n, c_b, c_s, c_inv, c_pn, c_pt, c_pr,
+                                       c_reff, radius, vel, omega, inv_mass, inv_inertia, mu,
+                                       mur, iterations, tolerance)
+            stats[1] += sweeps
+            if attempt == MAX_RESOLVES or _mark_missed(dt, pos, vel, radius, start, nbr,
+                                                       wall_start, wall, walls, pair_row,
+                                                       wall_row) == 0:
+                break
         for c in range(m):
             p = c_slot[c]
             if p >= 0:
@@ -326,7 +401,6 @@ def run_steps(n_steps, dt, time, pos, vel, omega, radius, inv_mass, inv_inertia,
                 wall_ht[-1 - p] = c_pt[c]
                 wall_hr[-1 - p] = c_pr[c]
         stats[0] += 1.0
-        stats[1] += sweeps
         stats[2] += m
         stats[3] = change
         moved = False

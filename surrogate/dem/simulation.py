@@ -93,7 +93,7 @@ class Dem:
         self.steps_done = 0
         self.nonsmooth = self.cfg.method == "nonsmooth"
         self.solver = nonsmooth.solver_params(self.cfg)
-        self.solver_stats = np.zeros(4)
+        self.solver_stats = np.zeros(nonsmooth.N_STATS)
         """Nonsmooth solver totals: steps, sweeps, contact rows, last sweep's
         largest velocity change [m/s]."""
         self._skin = self.cfg.skin
@@ -669,8 +669,9 @@ class Dem:
                 for name in ("ht", "hr", "hn", "wall_ht", "wall_hr", "wall_hn"):
                     getattr(dem, name)[:] = 0.0
                 dem._dirty = True  # lists sized for the new method's reach
-            if "solver_stats" in data.files:
-                dem.solver_stats = data["solver_stats"].copy()
+            if "solver_stats" in data.files:  # older checkpoints hold fewer counters
+                saved = data["solver_stats"]
+                dem.solver_stats[:saved.size] = saved
             for name in _PARTICLE_FIELDS + _LIST_FIELDS:
                 if name in ("hn", "wall_hn") and name not in data.files:
                     # a checkpoint of the explicit DEM from before the nonsmooth one
