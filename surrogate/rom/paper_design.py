@@ -375,11 +375,21 @@ def _keyed_config(config) -> dict:
             and (k not in SETTINGS_SINCE_VERSION_1 or v != defaults[k])}
 
 
+NONSMOOTH_REVISION = 2
+"""Revision of the nonsmooth solver, in the keys of nonsmooth runs only: revision 2
+checks for contacts missed before the solve (``surrogate.dem.nonsmooth``, item 6).
+Revision 1's runs of ``paper_heldout_nonsmooth`` blew up under the inflow (their
+records stay in git history); revision 2's run again under new keys."""
+
+
 def _common(design: Design) -> dict:
-    return {"design_version": DESIGN_VERSION, "config": _keyed_config(design.config),
-            "grid": design.grid.to_dict(), "control_step": doe.CONTROL_STEP,
-            "velocity_window": doe.VELOCITY_WINDOW, "bulk_age": doe.BULK_AGE,
-            "lot_mass": doe.LOT_MASS, "layout_angle": LAYOUT_ANGLE, "fill_rate": FILL_RATE}
+    common = {"design_version": DESIGN_VERSION, "config": _keyed_config(design.config),
+              "grid": design.grid.to_dict(), "control_step": doe.CONTROL_STEP,
+              "velocity_window": doe.VELOCITY_WINDOW, "bulk_age": doe.BULK_AGE,
+              "lot_mass": doe.LOT_MASS, "layout_angle": LAYOUT_ANGLE, "fill_rate": FILL_RATE}
+    if design.config.method == "nonsmooth":
+        common["nonsmooth_revision"] = NONSMOOTH_REVISION
+    return common
 
 
 def pile_key(design: Design, pile: PileSpec) -> str:
