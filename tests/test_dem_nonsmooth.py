@@ -153,18 +153,27 @@ def test_an_explicit_checkpoint_continues_under_the_nonsmooth_method(tmp_path):
     assert Dem.load_checkpoint(path).cfg.method == "explicit"
 
 
-def test_a_disk_pushed_fast_within_the_step_does_not_pass_a_gap_left_out():
+def _struck_column(resolves):
     """Three disks in a column: B rests 2 cm above A (too far to be a contact at
-    their speeds before the solve), D lands on B at 20 m/s. The impact speeds B
-    up inside the solve; the missed-contact check makes B-A a contact, so B
-    stops at A instead of moving about 0.13 m into it."""
+    their speeds before the solve), D lands on B at 20 m/s; one step."""
     d, gap = 0.4, 0.02
-    dem = Dem(_config(floor_width=12.0))
+    dem = Dem(_config(floor_width=12.0, missed_contact_resolves=resolves))
     mass = dem.cfg.sphere_mass(d)
     dem.place([[0.0, d / 2], [0.0, 1.5 * d + gap], [0.0, 2.5 * d + gap]], mass, 0.5, 1.0,
               F16, 1)
     dem.vel[2, 1] = -20.0  # D: touching B, landing on it
     dem.step(1)
-    assert dem.solver_stats[4] >= 1  # the step was solved again with B-A as a row
+    return dem
+
+
+def test_a_disk_pushed_fast_within_the_step_does_not_pass_a_gap_left_out():
+    """The impact speeds B up inside the solve; the missed-contact check makes
+    B-A a contact, so B stops at A. Without the check B moves into A."""
+    dem = _struck_column(resolves=3)
+    assert dem.solver_stats[4] == 1  # solved once more, with B-A as a row
     assert dem.max_overlap_ratio() < 0.01
-    assert dem.pos[1, 1] - dem.pos[0, 1] > d - 0.01 * d
+    unchecked = _struck_column(resolves=0)
+    assert unchecked.solver_stats[4] == 0
+    assert unchecked.max_overlap_ratio() > 0.2
+    with pytest.raises(ValueError, match="missed_contact_resolves"):
+        DemConfig(method="nonsmooth", missed_contact_resolves=-1)

@@ -198,6 +198,10 @@ class DemConfig:
         Approach speed above which a nonsmooth contact obeys Newton's impact
         law with ``restitution`` [m/s] (0.5; above g h = 0.11 m/s at 11 ms,
         so resting contacts stay inelastic).
+    missed_contact_resolves : int
+        Most times a nonsmooth step is solved again for contacts its solve
+        closed but that were not rows (``nonsmooth.py``, item 6) [-] (3, in
+        [0, 100]; 0 switches the check off, the solver before it).
 
     Blow-up guard (module docstring)
     --------------------------------
@@ -243,6 +247,7 @@ class DemConfig:
     solver_tolerance: float = 1e-6
     stabilization_steps: float = 2.0
     impact_speed: float = 0.5
+    missed_contact_resolves: int = 3
     guard_speed_factor: float = 2.0
     guard_energy_growth: float = 0.5
     guard_overlap_ratio: float = 0.5
@@ -298,6 +303,12 @@ class DemConfig:
             raise ValidationError("solver_iterations", "an integer in [1, 100000]",
                                   f"got {iterations!r}")
         self.solver_iterations = int(iterations)
+        resolves = self.missed_contact_resolves
+        if isinstance(resolves, bool) or not isinstance(resolves, (int, np.integer)) \
+                or not 0 <= resolves <= 100:
+            raise ValidationError("missed_contact_resolves", "an integer in [0, 100]",
+                                  f"got {resolves!r}")
+        self.missed_contact_resolves = int(resolves)
         threads = self.threads
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) \
                 or not 0 <= threads <= 4096:

@@ -52,7 +52,7 @@ wall; n from j to i, t = (-n_y, n_x); gap g = |x_i - x_j| - r_i - r_j):
    by a column falling onto it. After the sweeps every list entry left out
    is checked with the end-of-step velocities (``g + h u_n+ < 0``: it would
    overlap); if any is, the step is solved again from the free velocities
-   with those entries as rows (at most ``MAX_RESOLVES`` times), so no
+   with those entries as rows (at most ``missed_contact_resolves`` times), so no
    contact in the lists is passed unseen. ``stats[4]`` counts these
    re-solves.
 7. ``x += h v+``; the feeders and the blow-up guard as in the explicit DEM.
@@ -86,11 +86,8 @@ from surrogate.dem.kernels import (
 )
 
 # indices into the ``solver`` vector handed to ``run_steps``
-S_EPS, S_TAU_STEPS, S_E, S_VIMP, S_ITER, S_TOL = range(6)
-N_SOLVER = 6
-
-MAX_RESOLVES = 3
-"""Re-solves of one step for missed contacts (module docstring, item 6)."""
+S_EPS, S_TAU_STEPS, S_E, S_VIMP, S_ITER, S_TOL, S_RESOLVES = range(7)
+N_SOLVER = 7
 
 N_STATS = 5
 """Length of the ``stats`` vector of ``run_steps``."""
@@ -105,6 +102,7 @@ def solver_params(cfg) -> np.ndarray:
     solver[S_VIMP] = cfg.impact_speed
     solver[S_ITER] = cfg.solver_iterations
     solver[S_TOL] = cfg.solver_tolerance
+    solver[S_RESOLVES] = cfg.missed_contact_resolves
     return solver
 
 
@@ -348,6 +346,7 @@ def run_steps(n_steps, dt, time, pos, vel, omega, radius, inv_mass, inv_inertia,
     mur = params[P_MUR]
     iterations = int(solver[S_ITER])
     tolerance = solver[S_TOL]
+    resolves = int(solver[S_RESOLVES])
     speed2 = speed_limit * speed_limit
     capacity = nbr.shape[0] + wall.shape[0]
     c_i = np.empty(capacity, np.int64)
@@ -373,7 +372,7 @@ def run_steps(n_steps, dt, time, pos, vel, omega, radius, inv_mass, inv_inertia,
         free_omega[:] = omega
         pair_row[:] = 0
         wall_row[:] = 0
-        for attempt in range(MAX_RESOLVES + 1):
+        for attempt in range(resolves + 1):
             if attempt:
                 vel[:] = free_vel
                 omega[:] = free_omega
@@ -386,7 +385,7 @@ def run_steps(n_steps, dt, time, pos, vel, omega, radius, inv_mass, inv_inertia,
                                        c_reff, radius, vel, omega, inv_mass, inv_inertia, mu,
                                        mur, iterations, tolerance)
             stats[1] += sweeps
-            if attempt == MAX_RESOLVES or _mark_missed(dt, pos, vel, radius, start, nbr,
+            if attempt == resolves or _mark_missed(dt, pos, vel, radius, start, nbr,
                                                        wall_start, wall, walls, pair_row,
                                                        wall_row) == 0:
                 break
