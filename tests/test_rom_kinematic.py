@@ -116,25 +116,3 @@ def test_the_storage_moves_its_bulk_by_the_hybrid_field_on_request():
         storage.model.predict(mass, 1200.0, 600.0, check=False),
         kinematic.velocity_field(grid, container, 1200.0, 0.9), grid, container)
     assert np.array_equal(storage.predicted_field(mass, 1200.0, 600.0), expected)
-
-
-@pytest.mark.filterwarnings("ignore::surrogate.rom.model.OutOfTrainingRange")
-@pytest.mark.parametrize("velocity_model,packing", [("kinematic", "avalanche"),
-                                                    ("kinematic", "none"),
-                                                    ("hybrid", "avalanche")])
-def test_the_kinematic_and_hybrid_roms_conserve_ids_and_mass_and_repeat_themselves(
-        velocity_model, packing):
-    from test_rom_surface import _run, _sink_model
-
-    model = _sink_model()
-
-    def run(seed):
-        return _run(model, seed, steps=20, velocity_model=velocity_model, packing=packing)
-
-    store, storage, received, left = run(3)
-    held = storage.held_ids()
-    assert np.unique(left).size == left.size
-    assert np.array_equal(np.sort(np.concatenate((left, held))), np.sort(received))
-    assert store.total_mass(2) == pytest.approx(200.0 * 20, abs=256.0)
-    again = run(3)
-    assert np.array_equal(again[3], left)

@@ -120,15 +120,20 @@ def test_bad_transport_options_are_refused_by_name():
 
 
 @pytest.mark.filterwarnings("ignore::surrogate.rom.model.OutOfTrainingRange")
-@pytest.mark.parametrize("transport, packing", [("balanced", "avalanche"),
-                                                ("projected", "column"), ("balanced", "none")])
-def test_the_projected_rom_conserves_ids_and_mass_and_repeats_itself(transport, packing):
+@pytest.mark.parametrize("options", [
+    {"transport": "balanced", "packing": "avalanche"},
+    {"transport": "projected", "packing": "column"},
+    {"transport": "balanced", "packing": "none"},
+    {"velocity_model": "kinematic", "packing": "avalanche"},
+    {"velocity_model": "kinematic", "packing": "none"},
+    {"velocity_model": "hybrid", "packing": "avalanche"}])
+def test_the_projected_rom_conserves_ids_and_mass_and_repeats_itself(options):
     from test_rom_surface import _run, _sink_model
 
     model = _sink_model()
 
     def run(seed):
-        return _run(model, seed, steps=20, transport=transport, packing=packing)
+        return _run(model, seed, steps=20, **options)
 
     store, storage, received, left = run(3)
     held = storage.held_ids()

@@ -106,6 +106,16 @@ def solver_params(cfg) -> np.ndarray:
     return solver
 
 
+@njit(inline="always", **HOT)
+def _wall_offset(x, y, walls, w):
+    """``(dx, dy, d)``: the offset [m] of the point (x, y) from its closest point
+    on wall ``w``, and its length."""
+    cx, cy = _closest_on_segment(x, y, walls[w, 0], walls[w, 1], walls[w, 2], walls[w, 3])
+    dx = x - cx
+    dy = y - cy
+    return dx, dy, math.sqrt(dx * dx + dy * dy)
+
+
 @njit(**HOT)
 def _gather_contacts(h, pos, vel, omega, radius, inv_mass, inv_inertia, start, nbr, hn, ht, hr,
                      wall_start, wall, wall_hn, wall_ht, wall_hr, walls, solver, c_i, c_j, c_slot,
@@ -164,12 +174,7 @@ def _gather_contacts(h, pos, vel, omega, radius, inv_mass, inv_inertia, start, n
     for i in range(n):
         ri = radius[i]
         for p in range(wall_start[i], wall_start[i + 1]):
-            w = wall[p]
-            cx, cy = _closest_on_segment(pos[i, 0], pos[i, 1], walls[w, 0], walls[w, 1],
-                                         walls[w, 2], walls[w, 3])
-            dx = pos[i, 0] - cx
-            dy = pos[i, 1] - cy
-            d = math.sqrt(dx * dx + dy * dy)
+            dx, dy, d = _wall_offset(pos[i, 0], pos[i, 1], walls, wall[p])
             g = d - ri
             nx_ = dx / d
             ny_ = dy / d
@@ -313,12 +318,7 @@ def _mark_missed(h, pos, vel, radius, start, nbr, wall_start, wall, walls, pair_
         for p in range(wall_start[i], wall_start[i + 1]):
             if wall_row[p] != 0:
                 continue
-            w = wall[p]
-            cx, cy = _closest_on_segment(pos[i, 0], pos[i, 1], walls[w, 0], walls[w, 1],
-                                         walls[w, 2], walls[w, 3])
-            dx = pos[i, 0] - cx
-            dy = pos[i, 1] - cy
-            d = math.sqrt(dx * dx + dy * dy)
+            dx, dy, d = _wall_offset(pos[i, 0], pos[i, 1], walls, wall[p])
             if d - ri + h * (vel[i, 0] * dx + vel[i, 1] * dy) / d < 0.0:
                 wall_row[p] = 1
                 missed += 1
