@@ -8,6 +8,14 @@ set -euo pipefail
 NODE_OPCUA_VERSION="${NODE_OPCUA_VERSION:-2.186.4}"
 NODE_OPCUA_DIR="${NODE_OPCUA_DIR:-out/.node_opcua}"
 
+# two checkouts testing at once on one machine would both run apt-get, and the second
+# would fail on apt's lock: the installs here take turns (up to 15 min of waiting)
+exec 9>"${TMPDIR:-/tmp}/minetwin-test-prereqs.lock"
+if ! flock -w 900 9; then
+    echo "test prerequisites: another install held ${TMPDIR:-/tmp}/minetwin-test-prereqs.lock for 15 min" >&2
+    exit 1
+fi
+
 if [ ! -x /usr/bin/chromium ]; then
     if [ "$(id -u)" -ne 0 ] || ! command -v apt-get >/dev/null; then
         echo "test prerequisites: /usr/bin/chromium is missing; install Debian's 'chromium' package (needs root)" >&2
@@ -15,8 +23,8 @@ if [ ! -x /usr/bin/chromium ]; then
     fi
     echo "test prerequisites: installing Debian's chromium (apt-get)" >&2
     export DEBIAN_FRONTEND=noninteractive
-    apt-get update -qq
-    apt-get install -y -qq chromium >/dev/null
+    apt-get -o DPkg::Lock::Timeout=600 update -qq
+    apt-get -o DPkg::Lock::Timeout=600 install -y -qq chromium >/dev/null
 fi
 
 marker="$NODE_OPCUA_DIR/node_modules/node-opcua/package.json"
