@@ -21,8 +21,8 @@ averaged) is drawn against its compute per simulated second:
 DEM costs are CPU seconds: those runs shared a loaded machine, and their wall
 time says more about the load than about the method.
 
-Run the nonsmooth design first (about 21 CPU s per simulated second, an hour
-a scene; resumable)::
+Run the nonsmooth design first (about 16 CPU s per simulated second, 45-50 CPU
+minutes a scene; resumable)::
 
     .venv/bin/minetwin rom design --design paper_heldout_nonsmooth --work WORK --workers 1
     .venv/bin/minetwin rom design --design paper_heldout_nonsmooth --work WORK --export --data NS
