@@ -81,6 +81,14 @@ MIN_RESTITUTION = 0.25
 """Smallest restitution a clipped linear dashpot reaches with zeta <= 0.6."""
 
 
+def _integer_in(name: str, value, low: int, high: int, note: str = "") -> int:
+    """``value`` as an int, refused by name unless an integer in [low, high]."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) \
+            or not low <= value <= high:
+        raise ValidationError(name, f"an integer in [{low}, {high}]{note}", f"got {value!r}")
+    return int(value)
+
+
 def _pairs(value, name):
     arr = np.asarray(value, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] < 1:
@@ -297,24 +305,11 @@ class DemConfig:
         if self.method == "nonsmooth" and self.cohesion > 0:
             raise ValidationError("cohesion", "0 with method = \"nonsmooth\" (not modelled)",
                                   f"got {self.cohesion!r}")
-        iterations = self.solver_iterations
-        if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) \
-                or not 1 <= iterations <= 100_000:
-            raise ValidationError("solver_iterations", "an integer in [1, 100000]",
-                                  f"got {iterations!r}")
-        self.solver_iterations = int(iterations)
-        resolves = self.missed_contact_resolves
-        if isinstance(resolves, bool) or not isinstance(resolves, (int, np.integer)) \
-                or not 0 <= resolves <= 100:
-            raise ValidationError("missed_contact_resolves", "an integer in [0, 100]",
-                                  f"got {resolves!r}")
-        self.missed_contact_resolves = int(resolves)
-        threads = self.threads
-        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) \
-                or not 0 <= threads <= 4096:
-            raise ValidationError("threads", "an integer in [0, 4096] (0: all)",
-                                  f"got {threads!r}")
-        self.threads = int(threads)
+        self.solver_iterations = _integer_in("solver_iterations", self.solver_iterations, 1,
+                                             100_000)
+        self.missed_contact_resolves = _integer_in("missed_contact_resolves",
+                                                   self.missed_contact_resolves, 0, 100)
+        self.threads = _integer_in("threads", self.threads, 0, 4096, note=" (0: all)")
         for name in ("solver_tolerance", "stabilization_steps"):
             value = float(getattr(self, name))
             if not (math.isfinite(value) and 0.0 <= value <= 1e3):
