@@ -160,7 +160,9 @@ def main(argv=None) -> int:
               f"{row['tracking_error_spread']['n']} explicit replicas), explicit noise floor "
               f"{row['tracking_error_dem_noise_floor']:.3f}; CPU s per simulated s: "
               f"{row['method_cost']['cpu_s_per_simulated_s']:.1f} against the explicit "
-              f"DEM's {methods['explicit_costs'][scene]['cpu_s_per_simulated_s']:.1f}")
+              f"DEM's {methods['explicit_costs'][scene]['cpu_s_per_simulated_s']:.1f}; "
+              f"discharged {row['discharged_kg'] / 1e3:.0f} t against the explicit "
+              f"DEM's {row['explicit_discharged_kg'] / 1e3:.0f} t")
     for scene, row in methods["failed"].items():
         print(f"{scene}: {methods['method']} DEM blew up after {row['after_s']:.1f} s "
               f"({row['reason']}); picture at the failure: {row['picture']}")

@@ -61,6 +61,10 @@ def test_a_replica_scored_as_another_method_gets_its_mean_error_against_the_repl
     assert set(scores["explicit_costs"]) == {"heldout_q1200", "heldout_q2000",
                                              "heldout_out1500_in700"}
     assert row["method_cost"]["cpu_s_per_simulated_s"] > 0
+    replicas = {r["name"]: r for r in json.loads((HELDOUT / "manifest.json").read_text())["runs"]}
+    assert row["discharged_kg"] == replicas["heldout_q2000_r1"]["discharged_mass_kg"]
+    assert row["explicit_discharged_kg"] == pytest.approx(np.mean(
+        [replicas[f"heldout_q2000_r{k}"]["discharged_mass_kg"] for k in range(3)]), rel=1e-12)
 
 
 def test_a_method_run_that_started_later_is_compared_over_its_own_first_seconds(tmp_path):

@@ -97,6 +97,11 @@ def score_dem_method(method_data, reference_data) -> dict:
             "grade_error": scores["grade_error"], "hardness_error": scores["hardness_error"],
             "method_cost": _cost(runs[:1]),
             "method_mass_balance_error": float(runs[0]["mass_balance_error"]),
+            # a feeder that delivers less than the explicit DEM's is a jam the guard
+            # cannot see: the method's pile does not flow at the set rate
+            "discharged_kg": float(runs[0]["discharged_mass_kg"]),
+            "explicit_discharged_kg": float(sum(r["discharged_mass_kg"] for r in replicas)
+                                            / len(replicas)),
             "explicit_replicas": [r["name"] for r in replicas],
             "simulated_s": t1 - t0}
     failed = {}
