@@ -326,6 +326,46 @@ def paper_heldout_nonsmooth_design() -> Design:
                   checkpoint_interval=20.0)
 
 
+ROCK_STIFFNESS = 1.0e10
+"""Per-contact normal stiffness [N/m] of granite: E = 50 GPa, nu = 0.25,
+E* = E / (2 (1 - nu^2)) = 26.7 GPa, k_n ~ E* d with the mean diameter 0.376 m
+(``surrogate/dem/README.md``); 250 times ``DemConfig``'s default, a contact time
+16 times shorter."""
+
+ROCK_SCENES = (("rock_out2000", 2000.0, 0.0),)
+"""The rock-stiffness scene: the held-out 1.5 kt pile drained at 2 t/s (no inflow)."""
+
+ROCK_DURATION = 20.0
+"""Simulated seconds [s] of the rock scene: at 1e10 N/m the explicit DEM's step is
+16 times shorter, so a 180 s replica would cost about 10 CPU hours."""
+
+
+def paper_rock_design() -> Design:
+    """The held-out 1.5 kt pile (17,500 disks) at the rock stiffness
+    ``ROCK_STIFFNESS``, drained at the paper's 2 t/s for ``ROCK_DURATION`` s by the
+    explicit DEM at ``STEP_FRACTION`` of its contact time, ``HELDOUT_REPLICAS``
+    replicas: the reference and noise floor the nonsmooth method is scored
+    against where the explicit step collapses (issue 22)."""
+    cfg = paper_config(normal_stiffness=ROCK_STIFFNESS)
+    piles = (PileSpec("heldout_1500t", 17_500, seed=2),)
+    return Design("paper_rock", cfg, paper_grid(cfg), piles,
+                  _heldout_runs("pile:heldout_1500t", ROCK_SCENES, ROCK_DURATION,
+                                first_seed=200),
+                  checkpoint_interval=10.0)
+
+
+def paper_rock_nonsmooth_design() -> Design:
+    """``paper_rock_design``'s scene by the nonsmooth DEM at the paper's 11 ms and
+    100 sweeps (Servin et al. 2014), one run, its pile laid out alike and settled
+    by that method."""
+    cfg = paper_config(method="nonsmooth", normal_stiffness=ROCK_STIFFNESS)
+    piles = (PileSpec("heldout_1500t", 17_500, seed=2),)
+    return Design("paper_rock_nonsmooth", cfg, paper_grid(cfg), piles,
+                  _heldout_runs("pile:heldout_1500t", ROCK_SCENES, ROCK_DURATION,
+                                first_seed=200, replicas=1),
+                  checkpoint_interval=10.0)
+
+
 def reduced_heldout_design() -> Design:
     """``paper_heldout_design`` on a few hundred disks and seconds (for tests)."""
     cfg = paper_config()
@@ -338,7 +378,8 @@ def reduced_heldout_design() -> Design:
 
 DESIGNS = {"paper": paper_design, "reduced": reduced_design,
            "paper_heldout": paper_heldout_design, "reduced_heldout": reduced_heldout_design,
-           "paper_heldout_nonsmooth": paper_heldout_nonsmooth_design}
+           "paper_heldout_nonsmooth": paper_heldout_nonsmooth_design,
+           "paper_rock": paper_rock_design, "paper_rock_nonsmooth": paper_rock_nonsmooth_design}
 
 
 def get_design(name: str) -> Design:
