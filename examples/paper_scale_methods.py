@@ -16,7 +16,17 @@ averaged) is drawn against its compute per simulated second:
   2014) where its runs of the same scenes finished
   (``surrogate.rom.method_score``; the design ``paper_heldout_nonsmooth``); a
   run the blow-up guard stopped is an X at error 1 at its cost until then, with
-  the time it lasted.
+  the time it lasted; a run whose feeder delivered under 0.9 of the explicit
+  replicas' mass (``method_score.JAM_DELIVERED_SHARE``) is marked jammed.
+
+Per scored scene, ``scene_<scene>.png`` shows the discharged mass over time
+(the method, every explicit replica, the set point) and the pile at the end
+(areal mass on the ROM grid) of explicit replica 0 and of the method: where a
+jam shows.
+
+``--reference`` takes another explicit design, e.g. the rock-stiffness scene
+(``paper_rock``, 20 s: score it with ``--window 5``); scenes the ROM evaluation
+does not hold get the DEM points only.
 
 DEM costs are CPU seconds: those runs shared a loaded machine, and their wall
 time says more about the load than about the method.
@@ -39,6 +49,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from cosim import jsonio
 from cosim.errors import ValidationError
 
@@ -48,25 +60,35 @@ REFERENCE = ROOT / "surrogate" / "rom" / "data" / "paper_heldout"
 
 
 def points(evaluation: dict, methods: dict) -> dict:
-    """Per scene: ``[{"model", "tracking_error", "cost_s_per_s", "cost_kind"}]``."""
+    """Per scene: ``[{"model", "tracking_error", "cost_s_per_s", "cost_kind"}]``: the
+    storage models where the evaluation holds the scene, then both DEM methods."""
     out = {}
-    for scene, row in evaluation["scenarios"].items():
-        rows = [{"model": name, "tracking_error": row["tracking_error"][name],
-                 "cost_s_per_s": row["wall_s_per_simulated_s"][name], "cost_kind": "wall"}
-                for name in ("fifo", "mixing", "rom")]
+    scenes = [s for s in methods["explicit_costs"]
+              if s in methods["scenes"] or s in methods["failed"]
+              or s in evaluation["scenarios"]]
+    for scene in scenes:
+        row = evaluation["scenarios"].get(scene)
+        rows = [] if row is None else [
+            {"model": name, "tracking_error": row["tracking_error"][name],
+             "cost_s_per_s": row["wall_s_per_simulated_s"][name], "cost_kind": "wall"}
+            for name in ("fifo", "mixing", "rom")]
         scored = methods["scenes"].get(scene)
         explicit_cost = methods["explicit_costs"].get(scene)
-        rows.append({"model": "dem_explicit", "tracking_error":
-                     row["tracking_error_dem_noise_floor"],
+        floor = (scored["tracking_error_dem_noise_floor"] if scored is not None
+                 else None if row is None else row["tracking_error_dem_noise_floor"])
+        rows.append({"model": "dem_explicit", "tracking_error": floor,
                      "cost_s_per_s": (explicit_cost["cpu_s_per_simulated_s"]
-                                      if explicit_cost else None), "cost_kind": "cpu"})
+                                      if explicit_cost and floor is not None else None),
+                     "cost_kind": "cpu"})
         failed = methods["failed"].get(scene)
         if scored is not None:
             rows.append({"model": f"dem_{methods['method']}",
                          "tracking_error": scored["tracking_error"],
                          "spread": scored["tracking_error_spread"],
                          "cost_s_per_s": scored["method_cost"]["cpu_s_per_simulated_s"],
-                         "cost_kind": "cpu"})
+                         "cost_kind": "cpu", "jammed": scored["jammed"],
+                         "discharged_kg": scored["discharged_kg"],
+                         "explicit_discharged_kg": scored["explicit_discharged_kg"]})
         elif failed is not None:  # no outflow to score: where and when it blew up
             rows.append({"model": f"dem_{methods['method']}", "tracking_error": None,
                          "blew_up_after_s": failed["after_s"], "reason": failed["reason"],
@@ -81,7 +103,7 @@ BLOWN_UP_ROW = 1.0
 tracked."""
 
 
-def plot(result: dict, path: Path) -> None:
+def plot(result: dict, path: Path, window: float) -> None:
     from cosim import plotstyle
 
     plt = plotstyle.pyplot()
@@ -106,6 +128,15 @@ def plot(result: dict, path: Path) -> None:
                 continue
             ax.scatter(p["cost_s_per_s"], p["tracking_error"], color=colour, marker=marker,
                        s=50, zorder=3, label=label)
+            if p.get("jammed"):
+                ax.scatter(p["cost_s_per_s"], p["tracking_error"], facecolors="none",
+                           edgecolors="black", marker="o", s=220, zorder=4,
+                           label="jammed: delivered < 0.9 of the explicit DEM's mass")
+                ax.annotate(f"jammed: {p['discharged_kg'] / 1e3:.0f} t of "
+                            f"{p['explicit_discharged_kg'] / 1e3:.0f} t",
+                            (p["cost_s_per_s"], p["tracking_error"]),
+                            textcoords="offset points", xytext=(-10, 10), ha="right",
+                            fontsize=7)
             if "spread" in p:
                 ax.vlines(p["cost_s_per_s"], p["spread"]["min"], p["spread"]["max"],
                           color=colour, lw=1,
@@ -123,10 +154,76 @@ def plot(result: dict, path: Path) -> None:
             shown.setdefault(label, handle)
     axes[0, -1].legend(shown.values(), shown.keys(), fontsize=7, loc="center right")
     plotstyle.title(fig, "Paper-scale stockpile: tracking error against compute",
-                    "held-out scenes, 30 s windows; DEM: CPU time, storage models: wall "
-                    "time on one core")
+                    f"held-out scenes, {window:g} s windows; DEM: CPU time, storage models: "
+                    "wall time on one core")
     fig.tight_layout()
     plotstyle.save(fig, path, dpi=120)
+
+
+def _outcome(folder: Path, run: str) -> dict:
+    with np.load(folder / "train" / f"{run}.npz") as stored:
+        return {"time": np.asarray(stored["time"], dtype=np.float64),
+                "mass": np.asarray(stored["mass"], dtype=np.float64),
+                "setpoint": np.asarray(stored["setpoint"], dtype=np.float64),
+                "out_time": np.asarray(stored["out_time"], dtype=np.float64),
+                "out_mass": np.asarray(stored["out_mass"], dtype=np.float64)}
+
+
+def _grid(folder: Path) -> dict:
+    return json.loads((folder / "manifest.json").read_text())["grid"]
+
+
+def plot_scene(scene: str, row: dict, method: str, method_data: Path, reference: Path,
+               path: Path) -> None:
+    """The discharged mass over time and the pile at the end (areal mass on the ROM
+    grid) of explicit replica 0 and of the method."""
+    from cosim import plotstyle
+
+    plt = plotstyle.pyplot()
+    runs = [("explicit DEM, replica " + name.rsplit("_r", 1)[1], _outcome(reference, name))
+            for name in row["explicit_replicas"]]
+    ours = (f"{method} DEM", _outcome(method_data, row["method_run"]))
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.6),
+                             gridspec_kw={"width_ratios": [1.0, 1.4, 1.4]})
+    for k, (label, run) in enumerate([*runs, ours]):
+        t0 = run["time"][0]
+        order = np.argsort(run["out_time"], kind="stable")
+        taken = run["out_time"][order] - t0
+        style = dict(color="tab:purple", lw=2) if run is ours[1] else dict(
+            color="tab:green", lw=1, alpha=0.4 + 0.2 * k)
+        axes[0].step(np.concatenate([[0.0], taken]),
+                     np.concatenate([[0.0], np.cumsum(run["out_mass"][order])]) / 1e3,
+                     where="post", label=label, **style)
+    t = np.linspace(0.0, row["simulated_s"], 50)
+    axes[0].plot(t, ours[1]["setpoint"].mean() * t / 1e3, color="black", ls=":", lw=1,
+                 label=f"set point, {ours[1]['setpoint'].mean() / 1e3:.2f} t/s")
+    axes[0].set_xlabel("time since the scene's start [s]")
+    axes[0].set_ylabel("discharged mass [t]")
+    axes[0].set_title("feeder output", fontsize=9)
+    plotstyle.legend(axes[0], fontsize=7)
+    grid = _grid(reference)
+    cell_area = ((grid["x_max"] - grid["x_min"]) / grid["nx"]
+                 * (grid["y_max"] - grid["y_min"]) / grid["ny"])
+    ends = [(runs[0][0], runs[0][1]), ours]
+    top = max(float(run["mass"][-1].max()) for _, run in ends) / cell_area
+    for ax, (label, run) in zip(axes[1:], ends):
+        image = ax.imshow(run["mass"][-1] / cell_area, origin="lower", cmap="viridis",
+                          vmin=0.0, vmax=top, aspect="equal",
+                          extent=(grid["x_min"], grid["x_max"], grid["y_min"], grid["y_max"]))
+        ax.set_xlim(-40.0, 40.0)
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_title(f"{label} at the end ({run['time'][-1] - run['time'][0]:.0f} s)",
+                     fontsize=9)
+        fig.colorbar(image, ax=ax, label="areal mass [kg/m^2]", shrink=0.8)
+    verdict = (f"jammed: delivered {row['discharged_kg'] / 1e3:.0f} t of the explicit "
+               f"DEM's {row['explicit_discharged_kg'] / 1e3:.0f} t, nothing after "
+               f"{row['last_discharge_s']:.0f} s" if row["jammed"] else
+               f"delivered {row['discharged_kg'] / 1e3:.0f} t, the explicit DEM "
+               f"{row['explicit_discharged_kg'] / 1e3:.0f} t")
+    plotstyle.title(fig, f"{scene}: {method} DEM against the explicit DEM", verdict)
+    fig.tight_layout()
+    plotstyle.save(fig, path, dpi=110)
 
 
 def main(argv=None) -> int:
@@ -138,12 +235,14 @@ def main(argv=None) -> int:
                         help="exported explicit held-out design (default: the shipped one)")
     parser.add_argument("--evaluation", type=Path, default=EVALUATION,
                         help="`minetwin rom evaluate` summary of the shipped ROM on it")
+    parser.add_argument("--window", type=float, default=30.0,
+                        help="tracking-error window [s] (default 30; 5 for the 20 s rock scene)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     from surrogate.rom.method_score import score_dem_method
 
     try:
-        methods = score_dem_method(args.method_data, args.reference)
+        methods = score_dem_method(args.method_data, args.reference, window=args.window)
         evaluation = json.loads(args.evaluation.read_text())
     except (ValidationError, OSError) as error:
         print(f"paper_scale_methods: error: {error}", file=sys.stderr)
@@ -152,7 +251,10 @@ def main(argv=None) -> int:
               "evaluation": str(args.evaluation)}
     args.out.mkdir(parents=True, exist_ok=True)
     jsonio.write(args.out / "paper_scale_methods.json", result, indent=1)
-    plot(result, args.out / "paper_scale_methods.png")
+    plot(result, args.out / "paper_scale_methods.png", args.window)
+    for scene, row in methods["scenes"].items():
+        plot_scene(scene, row, methods["method"], args.method_data, args.reference,
+                   args.out / f"scene_{scene}.png")
     for scene, row in methods["scenes"].items():
         print(f"{scene}: {methods['method']} DEM tracking error {row['tracking_error']:.3f} "
               f"({row['tracking_error_spread']['min']:.3f}-"
@@ -162,7 +264,9 @@ def main(argv=None) -> int:
               f"{row['method_cost']['cpu_s_per_simulated_s']:.1f} against the explicit "
               f"DEM's {methods['explicit_costs'][scene]['cpu_s_per_simulated_s']:.1f}; "
               f"discharged {row['discharged_kg'] / 1e3:.0f} t against the explicit "
-              f"DEM's {row['explicit_discharged_kg'] / 1e3:.0f} t")
+              f"DEM's {row['explicit_discharged_kg'] / 1e3:.0f} t"
+              + (f" (jammed: nothing left after {row['last_discharge_s']:.0f} s)"
+                 if row["jammed"] else ""))
     for scene, row in methods["failed"].items():
         print(f"{scene}: {methods['method']} DEM blew up after {row['after_s']:.1f} s "
               f"({row['reason']}); picture at the failure: {row['picture']}")

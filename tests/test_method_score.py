@@ -17,10 +17,12 @@ from surrogate.rom.method_score import score_dem_method
 HELDOUT = Path(__file__).resolve().parents[1] / "surrogate" / "rom" / "data" / "paper_heldout"
 
 
-def _method_folder(tmp_path, run_name: str, shift_s: float = 0.0) -> Path:
+def _method_folder(tmp_path, run_name: str, shift_s: float = 0.0,
+                   stop_after_s: float | None = None) -> Path:
     """A design folder holding one run of the reference data, renamed replica 0 of
     its scene, its times moved by ``shift_s`` (another method's pile that settled to
-    a later time)."""
+    a later time); with ``stop_after_s``, its feeder delivers nothing after that
+    many seconds (a jam)."""
     manifest = json.loads((HELDOUT / "manifest.json").read_text())
     record = next(r for r in manifest["runs"] if r["name"] == run_name)
     scene = run_name.rsplit("_r", 1)[0]
@@ -29,6 +31,11 @@ def _method_folder(tmp_path, run_name: str, shift_s: float = 0.0) -> Path:
     (folder / "train").mkdir(parents=True)
     with np.load(HELDOUT / "train" / f"{run_name}.npz") as stored:
         arrays = {k: stored[k] for k in stored.files}
+    if stop_after_s is not None:
+        kept = arrays["out_time"] <= arrays["time"][0] + stop_after_s
+        for key in [k for k in arrays if k.startswith("out_")]:
+            arrays[key] = arrays[key][kept]
+        record["discharged_mass_kg"] = float(arrays["out_mass"].astype(np.float64).sum())
     for key in ("time", "out_time", "in_time"):
         arrays[key] = arrays[key] + np.asarray(shift_s, dtype=arrays[key].dtype)
     np.savez_compressed(folder / "train" / f"{scene}_r0.npz", **arrays)
@@ -65,6 +72,34 @@ def test_a_replica_scored_as_another_method_gets_its_mean_error_against_the_repl
     assert row["discharged_kg"] == replicas["heldout_q2000_r1"]["discharged_mass_kg"]
     assert row["explicit_discharged_kg"] == pytest.approx(np.mean(
         [replicas[f"heldout_q2000_r{k}"]["discharged_mass_kg"] for k in range(3)]), rel=1e-12)
+    assert row["jammed"] is False and row["window_s"] == 30.0
+    assert row["last_discharge_s"] > 179.0
+
+
+def test_a_feeder_that_stops_delivering_is_flagged_jammed_with_when(tmp_path):
+    jammed = score_dem_method(_method_folder(tmp_path / "a", "heldout_q2000_r1",
+                                             stop_after_s=100.0), HELDOUT)
+    row = jammed["scenes"]["heldout_q2000"]
+    assert row["jammed"] is True
+    assert 99.0 < row["last_discharge_s"] <= 100.0
+    assert row["discharged_kg"] < 0.9 * row["explicit_discharged_kg"]
+    short = score_dem_method(_method_folder(tmp_path / "b", "heldout_q2000_r1",
+                                            stop_after_s=170.0), HELDOUT)
+    assert short["scenes"]["heldout_q2000"]["jammed"] is False  # 0.94 of the mass
+
+
+def test_the_window_is_a_setting_checked_against_the_scene(tmp_path):
+    folder = _method_folder(tmp_path, "heldout_q1200_r1")
+    with np.load(HELDOUT / "train" / "heldout_q1200_r0.npz") as stored:
+        t0 = float(stored["time"][0])
+    row = score_dem_method(folder, HELDOUT, window=10.0)["scenes"]["heldout_q1200"]
+    assert row["window_s"] == 10.0
+    assert row["tracking_error_spread"]["max"] == pytest.approx(max(
+        metrics.tracking_error(_outflow("heldout_q1200_r1"), _outflow(f"heldout_q1200_r{k}"),
+                               t0, t0 + 180.0, 10.0) for k in range(3)), rel=1e-12)
+    for window, allowed in ((0.0, "> 0"), (400.0, "at most the scene's 180 s")):
+        with pytest.raises(ValidationError, match=allowed):
+            score_dem_method(folder, HELDOUT, window=window)
 
 
 def test_a_method_run_that_started_later_is_compared_over_its_own_first_seconds(tmp_path):
@@ -100,6 +135,7 @@ def test_the_example_charts_both_dem_methods_beside_the_storage_models(tmp_path)
     assert models == ["fifo", "mixing", "rom", "dem_explicit", "dem_nonsmooth"]
     assert all(p["cost_s_per_s"] > 0 for p in result["points"]["heldout_q2000"])
     assert (out / "paper_scale_methods.png").stat().st_size > 10_000
+    assert (out / "scene_heldout_q2000.png").stat().st_size > 10_000
     assert example.main(["--method-data", str(tmp_path / "missing"), "--out", str(out)]) == 2
 
 

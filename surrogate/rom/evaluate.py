@@ -274,24 +274,25 @@ def _spread(values: list[float]) -> dict:
             "n": int(values.size)}
 
 
-def ensemble_score(outflow: dict, references: list[dict], t0: float, t1: float) -> dict:
+def ensemble_score(outflow: dict, references: list[dict], t0: float, t1: float,
+                   window: float = 30.0) -> dict:
     """``score`` against each DEM replica: the mean of each error, and the tracking
     error's spread (mean, min, max, std, n)."""
-    scores = [score(outflow, reference, t0, t1) for reference in references]
+    scores = [score(outflow, reference, t0, t1, window) for reference in references]
     out = {key: float(np.mean([s[key] for s in scores]))
            for key in ("tracking_error", "grade_error", "hardness_error")}
     out["tracking_error_spread"] = _spread([s["tracking_error"] for s in scores])
     return out
 
 
-def noise_floor(references: list[dict], t0: float, t1: float) -> dict:
+def noise_floor(references: list[dict], t0: float, t1: float, window: float = 30.0) -> dict:
     """The errors between the DEM replicas, every pair once (``ensemble_score``'s keys)."""
     if len(references) < 2:
         from cosim.errors import ValidationError
 
         raise ValidationError("references", "at least 2 DEM replicas",
                               f"got {len(references)}")
-    pairs = [score(references[j], references[i], t0, t1)
+    pairs = [score(references[j], references[i], t0, t1, window)
              for i in range(len(references)) for j in range(i + 1, len(references))]
     out = {key: float(np.mean([p[key] for p in pairs]))
            for key in ("tracking_error", "grade_error", "hardness_error")}
@@ -577,12 +578,14 @@ def run_storage(name: str, heldout: Path, model: RomModel | None = None, seed: i
     return {k: np.concatenate(v) for k, v in outflow.items()}, wall, storage
 
 
-def score(outflow: dict, reference: dict, t0: float, t1: float) -> dict:
-    """Tracking error and outflow grade/hardness errors against ``reference``."""
-    return {"tracking_error": metrics.tracking_error(outflow, reference, t0, t1),
-            "grade_error": metrics.outflow_signal_error(outflow, reference, "grade", t0, t1),
+def score(outflow: dict, reference: dict, t0: float, t1: float, window: float = 30.0) -> dict:
+    """Tracking error and outflow grade/hardness errors against ``reference`` in
+    ``window`` [s] windows."""
+    return {"tracking_error": metrics.tracking_error(outflow, reference, t0, t1, window),
+            "grade_error": metrics.outflow_signal_error(outflow, reference, "grade", t0, t1,
+                                                        window),
             "hardness_error": metrics.outflow_signal_error(outflow, reference, "hardness",
-                                                           t0, t1)}
+                                                           t0, t1, window)}
 
 
 FEED_HORIZON = 30.0
