@@ -152,11 +152,13 @@ def plot(result: dict, path: Path, window: float) -> None:
     for ax in axes[0]:
         for handle, label in zip(*ax.get_legend_handles_labels()):
             shown.setdefault(label, handle)
-    axes[0, -1].legend(shown.values(), shown.keys(), fontsize=7, loc="center right")
+    # below the panels: inside one it hides points (the jammed run's, at the right)
+    fig.legend(shown.values(), shown.keys(), fontsize=7, loc="lower center", ncol=4,
+               frameon=False)
     plotstyle.title(fig, "Paper-scale stockpile: tracking error against compute",
                     f"held-out scenes, {window:g} s windows; DEM: CPU time, storage models: "
                     "wall time on one core")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.13, 1.0, 1.0))
     plotstyle.save(fig, path, dpi=120)
 
 
