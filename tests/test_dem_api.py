@@ -171,6 +171,20 @@ def test_cli_pile_then_discharge_writes_summary_and_pictures(tmp_path, capsys):
     assert main(["dem", "discharge", "--from", str(pile), "--rate", "5000", "--duration", "2",
                  "--out", str(out)]) == 2
     assert "discharge_rate" in capsys.readouterr().err
+    # the same state continued under changed settings, from the checkpoint file
+    changed = tmp_path / "changed"
+    assert main(["dem", "discharge", "--from", str(out / "checkpoint.npz"), "--rate", "300",
+                 "--duration", "1", "--out", str(changed), "--set", "method=nonsmooth",
+                 "--set", "solver_iterations=50"]) == 0
+    summary = json.loads((changed / "summary.json").read_text())
+    assert summary["dt_s"] == 0.011 and summary["mass_balance_rel_error"] < 1e-12
+    capsys.readouterr()
+    for bad, named in (("solver_iterations=2.5", "solver_iterations: must be an integer"),
+                       ("rolling_resistance=NaN", "rolling_resistance: must be in [0, 10]"),
+                       ("nonsense=1", "unknown key(s) ['nonsense']")):
+        assert main(["dem", "discharge", "--from", str(out), "--rate", "300", "--duration",
+                     "1", "--out", str(changed), "--set", bad]) == 2
+        assert named in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("angle", [30.0, 38.0])

@@ -43,9 +43,16 @@ def register(subparsers) -> None:
 
     dis = sub.add_parser("discharge", help="discharge a pile through the feeder",
                          description="Continue from a pile's checkpoint with the feeder of "
-                                     "outlet 0 at a constant rate.")
+                                     "outlet 0 at a constant rate, optionally under changed "
+                                     "DEM settings (--set).")
     dis.add_argument("--from", dest="source", required=True,
-                     help="directory with checkpoint.npz (from `dem pile` or `dem discharge`)")
+                     help="directory with checkpoint.npz (from `dem pile` or `dem discharge`) "
+                          "or a checkpoint .npz file (e.g. a design's states/run_<key>.npz)")
+    dis.add_argument("--set", dest="changes", action="append", default=[],
+                     metavar="FIELD=VALUE",
+                     help="continue under this DemConfig field changed, e.g. method=explicit, "
+                          "solver_iterations=200, rolling_resistance=0.3 (repeatable; the "
+                          "contact history is cleared and the new setting's default step used)")
     dis.add_argument("--rate", type=float, required=True,
                      help="feeder setpoint [kg/s] (0..2000; capped at what the opening passes, "
                           "Beverloo)")
@@ -205,12 +212,15 @@ def run_discharge(args) -> int:
     from surrogate.dem.simulation import Dem
     from surrogate.dem.snapshots import SnapshotWriter
 
-    source = Path(args.source) / "checkpoint.npz"
+    source = Path(args.source)
+    if not source.suffix == ".npz":
+        source = source / "checkpoint.npz"
     if not source.is_file():
-        raise ValidationError("--from", "a directory holding checkpoint.npz",
-                              f"{source} not found")
+        raise ValidationError("--from", "a directory holding checkpoint.npz or a checkpoint "
+                              ".npz file", f"{source} not found")
     _check_positive("--duration", args.duration)
-    dem = Dem.load_checkpoint(source)
+    changes = _setting_changes(args.changes)
+    dem = Dem.load_checkpoint(source, changes=changes or None)
     dem.set_discharge_rate(args.rate, outlet=0)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -241,6 +251,27 @@ def run_discharge(args) -> int:
                       model="dem")
     return _finish(dem, out, label, wall, dem.steps_done - steps0,
                    counter.particle_steps, discharged, balance)
+
+
+def _setting_changes(items: list[str]) -> dict:
+    """``--set FIELD=VALUE`` items as DemConfig fields; a value is read as JSON (numbers,
+    true/false, lists) and else kept as text (``method=explicit``). Unknown fields
+    and bad values are refused by ``DemConfig`` itself, by name."""
+    import json
+
+    from cosim.errors import ValidationError
+
+    changes = {}
+    for item in items:
+        field, sep, text = item.partition("=")
+        if not sep or not field.strip():
+            raise ValidationError("--set", "FIELD=VALUE", f"got {item!r}")
+        try:
+            value = json.loads(text)
+        except ValueError:
+            value = text
+        changes[field.strip()] = value
+    return changes
 
 
 def _write_discharged(path, records) -> None:
