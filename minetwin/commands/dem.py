@@ -122,13 +122,16 @@ COMPILE_NOTE = ("the first steps compile the DEM kernels (numba, cached for late
 
 
 class _Counter:
-    """Progress callback (``cosim.progress``: simulated time, particles, steps, held
-    mass) that also counts particle-steps between calls."""
+    """Progress callback (``cosim.progress``: simulated seconds since the command
+    started, of ``duration`` [s]; particles, steps, held mass) that also counts
+    particle-steps between calls."""
 
-    def __init__(self, label: str, total: float, dem):
+    def __init__(self, label: str, duration: float, dem):
         from cosim.progress import Progress
 
-        self.lines = Progress(label, total, every_s=2.0)
+        # a continued state starts at its own time: count from there
+        self.t0 = dem.time
+        self.lines = Progress(label, duration, every_s=2.0)
         self.lines.note(COMPILE_NOTE)
         self.steps = dem.steps_done
         self.particle_steps = 0.0
@@ -139,11 +142,11 @@ class _Counter:
         self.steps = dem.steps_done
         if self.writer is not None:
             self.writer.maybe_write(dem)
-        self.lines.update(dem.time, self.state(dem))
+        self.lines.update(dem.time - self.t0, self.state(dem))
 
     def close(self, dem) -> None:
         """The final line, with the end time and the wall time it took."""
-        self.lines.update(dem.time, self.state(dem))
+        self.lines.update(dem.time - self.t0, self.state(dem))
         self.lines.close(self.state(dem))
 
     @staticmethod
@@ -187,7 +190,7 @@ def run_pile(args) -> int:
     # then the whole settling time (settling may stop earlier)
     lots = math.ceil(args.particles * mean_particle_mass(cfg) / args.lot_kg)
     longest = (lots * args.lot_interval if args.method == "pour" else 0.0) + args.settle_time
-    counter = _Counter("dem pile", dem.time + longest, dem)
+    counter = _Counter("dem pile", longest, dem)
     if args.snapshot_interval:
         counter.writer = SnapshotWriter(out / "snapshots", args.snapshot_interval)
     if args.method == "pour":
@@ -226,7 +229,7 @@ def run_discharge(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     held0 = dem.held_mass()
     steps0 = dem.steps_done
-    counter = _Counter("dem discharge", dem.time + args.duration, dem)
+    counter = _Counter("dem discharge", args.duration, dem)
     if args.snapshot_interval:
         counter.writer = SnapshotWriter(out / "snapshots", args.snapshot_interval)
     chunk = 0.25
