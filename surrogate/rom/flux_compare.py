@@ -1,0 +1,142 @@
+"""Velocity fit against mass-flux fit on the training design, run by run.
+
+Source: the diagnosis in surrogate/rom/README.md ("What limits the accuracy
+now"): on the 2 t/s scene the fitted field's upper funnel core is too slow
+and the flux it carries down through a row is not the feeder's. This module
+measures the same two things by leave-one-run-out cross-validation on the
+training design only (no held-out scene enters): each run's states are
+predicted by a model fitted on the other runs (``RomModel``, ``target``
+"velocity" or "flux", the same POD + ridge regression; the flux model's
+velocity is its flux over the run's DEM cell mass, floored, as the storage
+uses it at the ROM's mass).
+
+Quantities (per run discharging at least ``kinematic.LEAST_DISCHARGE`` =
+100 kg/s, time means over its states):
+
+- axis speed [m/s]: the time-mean downward speed -v_y of the cells within
+  ``kinematic.AXIS_HALF_WIDTH`` = 3 m of the outlet, in the rows whose axis
+  cells are bulk (DEM fill >= ``kinematic.BULK_FILL`` = 0.7) in at least 90 %
+  of the states; reported as the RMS difference from the DEM's over those
+  cells, and the mean over the upper half of those rows (the "upper core").
+- row flux [m^2/s]: Phi_j = sum_i (M_ij / M_full) (-v_y,ij) dx, the downward
+  flux through row j with the DEM's cell fill as weight (M_full = rho_A dx dy),
+  time-mean; reported as the RMS difference from the DEM's over the same rows
+  and, for scale, the discharge's q_out / rho_A.
+- field error: ``metrics.velocity_field_rel_error`` of the run's states (the
+  model selection's criterion).
+
+Parameters: ``velocity`` and ``flux`` are (mass modes, velocity modes, ridge)
+and (mass modes, flux modes, ridge, flux floor) [-]; the defaults are what
+the selections chose on the paper design (velocity: the shipped model,
+4/4/100; flux: ``minetwin rom train --target flux``'s choice).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from surrogate.rom import doe, metrics
+from surrogate.rom.container import Container
+from surrogate.rom.grid import Grid
+from surrogate.rom.kinematic import AXIS_HALF_WIDTH, BULK_FILL, LEAST_DISCHARGE
+from surrogate.rom.model import RomModel
+
+
+def _rms(values) -> float:
+    values = np.asarray(values, dtype=np.float64).ravel()
+    return float(np.linalg.norm(values) / max(values.size, 1) ** 0.5)
+
+
+def compare(directory, velocity=(4, 4, 100.0), flux=(4, 4, 100.0, 0.5)) -> dict:
+    """``{run name: {...}}``: the module docstring's quantities for the DEM, the
+    velocity fit and the flux fit, each fitted without the run."""
+    meta = doe.read_meta(directory)
+    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
+    samples = doe.load_samples(directory)
+    names = [f.stem for f in sorted(Path(directory, "train").glob("*.npz"))]
+    x, y = grid.centres()
+    axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
+    full = container.areal_density * grid.dx * grid.dy
+    out = {}
+    for number, name in enumerate(names):
+        held = samples["run"] == number
+        used = held & (samples["discharge_rate"] >= LEAST_DISCHARGE)
+        if not used.any():
+            continue
+        models = {
+            "velocity": RomModel(grid, *velocity, container),
+            "flux": RomModel(grid, *flux[:3], container, target="flux", flux_floor=flux[3]),
+        }
+        for model in models.values():
+            model.fit(samples["mass"][~held], samples["discharge_rate"][~held],
+                      samples["inflow_rate"][~held], samples["velocity"][~held])
+        mass = samples["mass"][used].astype(np.float64)
+        rates = samples["discharge_rate"][used].astype(np.float64)
+        fields = {"dem": samples["velocity"][used].astype(np.float64)}
+        for key, model in models.items():
+            fields[key] = np.array([model.predict(m, q, i, check=False) for m, q, i in
+                                    zip(mass, rates, samples["inflow_rate"][used])])
+        kept = (mass >= BULK_FILL * full).mean(0) >= 0.9
+        rows = [j for j in range(grid.ny) if kept[j, axis].all()]
+        upper = rows[len(rows) // 2:]
+        speed = {k: -f[..., 1].mean(0) for k, f in fields.items()}
+        row_flux = {k: (-(mass / full) * f[..., 1]).mean(0).sum(1) * grid.dx
+                    for k, f in fields.items()}
+        entry = {"samples": int(used.sum()), "discharge_rate": float(rates.mean()),
+                 "q_over_rho": float(rates.mean() / container.areal_density),
+                 "rows": [float(y[j]) for j in rows],
+                 "upper_axis_speed": {k: float(s[upper][:, axis].mean()) if upper else None
+                                      for k, s in speed.items()},
+                 "row_flux": {k: [float(f[j]) for j in rows] for k, f in row_flux.items()}}
+        for key in models:
+            entry[key] = {
+                "axis_speed_rms": _rms(speed[key][rows][:, axis] - speed["dem"][rows][:, axis]),
+                "row_flux_rms": _rms(row_flux[key][rows] - row_flux["dem"][rows]),
+                "field_rel_error": metrics.velocity_field_rel_error(
+                    fields[key], fields["dem"], mass)}
+        out[name] = entry
+    return out
+
+
+def table(report: dict) -> str:
+    """The comparison as a Markdown table (velocity fit / flux fit per column)."""
+    lines = ["| run | q_out [kg/s] | axis speed RMS error [m/s] | upper-core axis speed "
+             "DEM / vel / flux [m/s] | row flux RMS error [m^2/s] (q/rho_A) | row flux in the "
+             "top axis row DEM / vel / flux [m^2/s] | field error |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for name, e in report.items():
+        up = e["upper_axis_speed"]
+        top = {k: v[-1] if v else float("nan") for k, v in e["row_flux"].items()}
+        lines.append(
+            f"| {name} | {e['discharge_rate']:.0f} | {e['velocity']['axis_speed_rms']:.3f} / "
+            f"{e['flux']['axis_speed_rms']:.3f} | {up['dem']:.3f} / {up['velocity']:.3f} / "
+            f"{up['flux']:.3f} | {e['velocity']['row_flux_rms']:.2f} / "
+            f"{e['flux']['row_flux_rms']:.2f} ({e['q_over_rho']:.2f}) | {top['dem']:.2f} / "
+            f"{top['velocity']:.2f} / {top['flux']:.2f} | "
+            f"{e['velocity']['field_rel_error']:.3f} / {e['flux']['field_rel_error']:.3f} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    import argparse
+    import json
+
+    parser = argparse.ArgumentParser(description="Velocity fit against mass-flux fit on a "
+                                                 "training design, leave one run out "
+                                                 "(surrogate.rom.flux_compare)")
+    parser.add_argument("--data", required=True, help="design folder (doe.json, train/*.npz)")
+    parser.add_argument("--velocity", default="4,4,100",
+                        help="velocity fit: mass modes, velocity modes, ridge")
+    parser.add_argument("--flux", default="4,4,100,0.5",
+                        help="flux fit: mass modes, flux modes, ridge, flux floor")
+    parser.add_argument("--json", default=None, help="also write the report here")
+    args = parser.parse_args()
+    v = [float(a) for a in args.velocity.split(",")]
+    f = [float(a) for a in args.flux.split(",")]
+    report = compare(args.data, (int(v[0]), int(v[1]), v[2]),
+                     (int(f[0]), int(f[1]), f[2], f[3]))
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=1))
+    print(table(report))
