@@ -100,6 +100,59 @@ def compare(directory, velocity=(4, 4, 100.0), flux=(4, 4, 100.0, 0.5)) -> dict:
     return out
 
 
+def projection_ceiling(directory, modes=(4, 8, 16), flux_floor: float = 0.5) -> dict:
+    """``{run name: {"velocity"|"flux": {modes: (upper-core axis speed, top-row
+    flux)}}}`` plus the DEM's (``"dem"``): each run's DEM field projected onto
+    the first ``modes`` POD modes of the other runs' velocity (uncentred) or flux
+    (the flux then over the DEM cell mass floored at ``flux_floor`` full cells):
+    what a fit with that many modes could at best reproduce (same rows and
+    cells as ``compare``)."""
+    from surrogate.rom.model import flux_samples, pod_basis
+
+    meta = doe.read_meta(directory)
+    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
+    samples = doe.load_samples(directory)
+    names = [f.stem for f in sorted(Path(directory, "train").glob("*.npz"))]
+    x, _ = grid.centres()
+    axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
+    full = container.areal_density * grid.dx * grid.dy
+    shape = (-1, grid.ny, grid.nx, 2)
+    out = {}
+    for number, name in enumerate(names):
+        held = samples["run"] == number
+        used = held & (samples["discharge_rate"] >= LEAST_DISCHARGE)
+        if not used.any():
+            continue
+        mass = samples["mass"][used].astype(np.float64)
+        kept = (mass >= BULK_FILL * full).mean(0) >= 0.9
+        rows = [j for j in range(grid.ny) if kept[j, axis].all()]
+        upper = rows[len(rows) // 2:]
+
+        def summary(field):
+            speed = -field[..., 1].mean(0)
+            row = (-(mass / full) * field[..., 1]).mean(0).sum(1) * grid.dx
+            return float(speed[upper][:, axis].mean()), float(row[rows[-1]])
+
+        dem = samples["velocity"][used].astype(np.float64)
+        entry = {"dem": summary(dem)}
+        divisor = np.maximum(mass, flux_floor * full)[..., None]
+        for target in ("velocity", "flux"):
+            train = samples["velocity"][~held]
+            here = dem.reshape(len(dem), -1)
+            if target == "flux":
+                train = flux_samples(samples["mass"][~held], train)
+                here = flux_samples(mass, dem)
+            _, _, vt, _ = pod_basis(train, centred=False)
+            entry[target] = {}
+            for k in modes:
+                projected = ((here @ vt[:k].T) @ vt[:k]).reshape(shape)
+                if target == "flux":
+                    projected = projected / divisor
+                entry[target][k] = summary(projected)
+        out[name] = entry
+    return out
+
+
 def table(report: dict) -> str:
     """The comparison as a Markdown table (velocity fit / flux fit per column)."""
     lines = ["| run | q_out [kg/s] | axis speed RMS error [m/s] | upper-core axis speed "
@@ -132,7 +185,13 @@ if __name__ == "__main__":
     parser.add_argument("--flux", default="4,4,100,0.5",
                         help="flux fit: mass modes, flux modes, ridge, flux floor")
     parser.add_argument("--json", default=None, help="also write the report here")
+    parser.add_argument("--ceiling", action="store_true",
+                        help="instead: the DEM fields projected onto 4, 8 and 16 POD modes "
+                             "of the other runs (projection_ceiling), as JSON")
     args = parser.parse_args()
+    if args.ceiling:
+        print(json.dumps(projection_ceiling(args.data), indent=1))
+        raise SystemExit(0)
     v = [float(a) for a in args.velocity.split(",")]
     f = [float(a) for a in args.flux.split(",")]
     report = compare(args.data, (int(v[0]), int(v[1]), v[2]),
