@@ -153,6 +153,116 @@ def projection_ceiling(directory, modes=(4, 8, 16), flux_floor: float = 0.5) -> 
     return out
 
 
+def _pile(grid: Grid, cells: np.ndarray, pool: np.ndarray, rng) -> tuple:
+    """Particles (masses drawn from ``pool`` [kg]) filling the cells of the mass
+    field ``cells`` (ny, nx) [kg] cell by cell, uniform within each cell [m]."""
+    target = np.asarray(cells, dtype=np.float64).ravel()
+    count = int(target.sum() / pool.mean() * 1.3) + 16
+    mass = rng.choice(pool, count)
+    centre = np.cumsum(mass) - 0.5 * mass
+    keep = centre < target.sum()
+    mass, centre = mass[keep], centre[keep]
+    cell = np.minimum(np.searchsorted(np.cumsum(target), centre, side="right"), target.size - 1)
+    row, column = np.divmod(cell, grid.nx)
+    position = np.stack([grid.x_min + (column + rng.random(cell.size)) * grid.dx,
+                         grid.y_min + (row + rng.random(cell.size)) * grid.dy], axis=1)
+    return mass, position
+
+
+def closed_loop(directory, models: dict, runs=None, seed: int = 0) -> dict:
+    """``{run: {"dem" | model name: {...}}}``: each ``RomStorage`` (default options,
+    the model files ``models`` {name: path}) started from a training run's first
+    mass field (particles drawn from the masses the design's DEM runs discharged),
+    every run commanded at least ``LEAST_DISCHARGE``, driven at the
+    run's commanded discharge and mean inflow for as many seconds as it was
+    sampled, its own fields sampled once per ``doe.CONTROL_STEP``: time-mean
+    upper-core axis speed [m/s] of the field the bulk moved by (projected) and of
+    the model's prediction at the ROM's mass (before the projection), the ROM's
+    upper-core fill [-] and its top-row flux [m^2/s] (rows and cells as in
+    ``compare``, fixed by the DEM run), the axis speed row by row and the
+    speed and fill of the feeder's row over the opening. Training data only."""
+    import warnings
+
+    from cosim.particles import ParticleStore
+    from surrogate.rom.storage import RomStorage
+
+    meta = doe.read_meta(directory)
+    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
+    samples = doe.load_samples(directory)
+    files = sorted(Path(directory, "train").glob("*.npz"))
+    x, _ = grid.centres()
+    axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
+    full = container.areal_density * grid.dx * grid.dy
+    pools, setpoints = [], []
+    for path in files:
+        with np.load(path) as data:
+            pools.append(np.asarray(data["out_mass"], dtype=np.float64))
+            setpoints.append(float(data["setpoint"][0]))
+    pool = np.concatenate(pools)  # every run's discharged masses
+    out = {}
+    for number, path in enumerate(files):
+        setpoint = setpoints[number]
+        if (runs is not None and path.stem not in runs) or setpoint < LEAST_DISCHARGE:
+            continue
+        rows_used = np.flatnonzero(samples["run"] == number)
+        mass_dem = samples["mass"][rows_used].astype(np.float64)
+        kept = (mass_dem >= BULK_FILL * full).mean(0) >= 0.9
+        rows = [j for j in range(grid.ny) if kept[j, axis].all()]
+        upper = rows[len(rows) // 2:]
+        inflow = float(samples["inflow_rate"][rows_used].mean())
+        opening = np.abs(x - container.outlet_x) <= 0.5 * container.outlet_width
+
+        def summary(mass, field):
+            speed = -field[..., 1].mean(0)
+            row = (-(mass / full) * field[..., 1]).mean(0).sum(1) * grid.dx
+            fill = mass.mean(0) / full
+            return {"upper_axis_speed": float(speed[upper][:, axis].mean()),
+                    "upper_axis_fill": float(fill[upper][:, axis].mean()),
+                    "top_row_flux": float(row[rows[-1]]),
+                    "axis_speed_by_row": [float(speed[j, axis].mean()) for j in rows],
+                    "feeder_row_speed": [float(v) for v in speed[0, opening]],
+                    "feeder_row_fill": [float(v) for v in fill[0, opening]]}
+
+        entry = {"dem": summary(mass_dem, samples["velocity"][rows_used].astype(np.float64))}
+        for name, model_path in models.items():
+            rng = np.random.default_rng(seed)
+            model = RomModel.load(model_path)
+            mass, position = _pile(grid, mass_dem[0], pool, rng)
+            steps = rows_used.size
+            fed = rng.choice(pool, int(inflow * steps * doe.CONTROL_STEP / pool.min()) + 1)
+            arrival = np.searchsorted(np.cumsum(fed), inflow * doe.CONTROL_STEP
+                                      * np.arange(1, steps + 1), side="right")
+            store = ParticleStore(capacity=4096)
+            ids = store.add(mass=mass, f=doe.FEED_F, grade=np.full(mass.size, 0.01),
+                            hardness=np.ones(mass.size), owner=1, time=0.0)
+            storage = RomStorage(model, rng=np.random.default_rng(seed))
+            storage.bind(store, 1)
+            storage.place(ids, position)
+            masses, moved, predicted, first = [], [], [], 0
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                for k in range(steps):
+                    t = k * doe.CONTROL_STEP
+                    if arrival[k] > first:
+                        count = arrival[k] - first
+                        new = store.add(mass=fed[first:arrival[k]], f=doe.FEED_F,
+                                        grade=np.full(count, 0.01), hardness=np.ones(count),
+                                        owner=1, time=t)
+                        storage.receive(new, t)
+                        first = arrival[k]
+                    leaving = storage.step(t, doe.CONTROL_STEP, setpoint)
+                    store.remove_slots(store.slots(leaving))
+                    fields = storage.fields()
+                    masses.append(fields["mass"])
+                    moved.append(np.array(fields["velocity"], dtype=np.float64))
+                    predicted.append(storage.predicted_field(fields["mass"], setpoint, inflow))
+            masses = np.array(masses)
+            entry[name] = {**summary(masses, np.array(moved)),
+                           "predicted": summary(masses, np.array(predicted))}
+        out[path.stem] = entry
+    return out
+
+
 def table(report: dict) -> str:
     """The comparison as a Markdown table (velocity fit / flux fit per column)."""
     lines = ["| run | q_out [kg/s] | axis speed RMS error [m/s] | upper-core axis speed "
@@ -188,9 +298,18 @@ if __name__ == "__main__":
     parser.add_argument("--ceiling", action="store_true",
                         help="instead: the DEM fields projected onto 4, 8 and 16 POD modes "
                              "of the other runs (projection_ceiling), as JSON")
+    parser.add_argument("--closed-loop", metavar="NAME=MODEL,...", default=None,
+                        help="instead: run the ROM with these model files through the "
+                             "training runs (closed_loop), as JSON")
+    parser.add_argument("--runs", default=None, help="with --closed-loop: run names, comma-separated")
     args = parser.parse_args()
     if args.ceiling:
         print(json.dumps(projection_ceiling(args.data), indent=1))
+        raise SystemExit(0)
+    if args.closed_loop:
+        names = dict(item.split("=", 1) for item in args.closed_loop.split(","))
+        print(json.dumps(closed_loop(args.data, names, args.runs.split(",") if args.runs
+                                     else None), indent=1))
         raise SystemExit(0)
     v = [float(a) for a in args.velocity.split(",")]
     f = [float(a) for a in args.flux.split(",")]
