@@ -301,7 +301,8 @@ if __name__ == "__main__":
     parser.add_argument("--closed-loop", metavar="NAME=MODEL,...", default=None,
                         help="instead: run the ROM with these model files through the "
                              "training runs (closed_loop), as JSON")
-    parser.add_argument("--runs", default=None, help="with --closed-loop: run names, comma-separated")
+    parser.add_argument("--runs", default=None,
+                        help="with --closed-loop: run names, comma-separated")
     args = parser.parse_args()
     if args.ceiling:
         print(json.dumps(projection_ceiling(args.data), indent=1))

@@ -308,7 +308,10 @@ class RomModel:
         """Velocity field [m/s], ``(ny, nx, 2)``, for one mass field ``(ny, nx)`` [kg]
         and rates [kg/s]; with ``target="flux"`` the predicted flux over
         max(mass, ``flux_floor`` full cells) (module docstring)."""
-        field = self._fitted_field(mass, discharge_rate, inflow_rate, check)
+        field, flat, z = self._fitted_field(mass, discharge_rate, inflow_rate)
+        if check:  # here, so that the warning names the caller of predict
+            self.check_ranges(flat, discharge_rate, inflow_rate,
+                              float(self._residual(flat, z)[0]))
         if self.target == "velocity":
             return field
         return field / self._divisor(mass)[..., None]
@@ -317,7 +320,10 @@ class RomModel:
                      check: bool = True) -> np.ndarray:
         """Mass flux [kg m/s per cell], ``(ny, nx, 2)``: the fitted flux
         (``target="flux"``) or the mass field times the predicted velocity."""
-        field = self._fitted_field(mass, discharge_rate, inflow_rate, check)
+        field, flat, z = self._fitted_field(mass, discharge_rate, inflow_rate)
+        if check:
+            self.check_ranges(flat, discharge_rate, inflow_rate,
+                              float(self._residual(flat, z)[0]))
         if self.target == "flux":
             return field
         return field * np.asarray(mass, dtype=np.float64).reshape(self.grid.ny, self.grid.nx, 1)
@@ -327,9 +333,9 @@ class RomModel:
         mass = np.asarray(mass, dtype=np.float64).reshape(self.grid.ny, self.grid.nx)
         return np.maximum(mass, self.flux_floor * self.full_cell_mass)
 
-    def _fitted_field(self, mass, discharge_rate: float, inflow_rate: float,
-                      check: bool) -> np.ndarray:
-        """The regressed field (``target``'s unit), ``(ny, nx, 2)``."""
+    def _fitted_field(self, mass, discharge_rate: float, inflow_rate: float) -> tuple:
+        """``(field, flat mass, z)``: the regressed field (``target``'s unit),
+        ``(ny, nx, 2)``, the mass field (1, cells) and its POD coefficients."""
         if not self.trained:
             raise ValidationError("model", "a trained model (call fit or load first)")
         a = self.arrays
@@ -338,12 +344,9 @@ class RomModel:
             raise ValidationError("mass", f"a field on the {self.grid.shape} grid",
                                   f"got {flat.shape[1]} values")
         z = (flat - a["mass_mean"]) @ a["mass_modes"] / a["mass_scale"]
-        if check:
-            self.check_ranges(flat, discharge_rate, inflow_rate,
-                              float(self._residual(flat, z)[0]))
         coefficients = self._features(z, discharge_rate, inflow_rate) @ a["weights"]
         velocity = a["velocity_mean"] + (coefficients * a["velocity_scale"]) @ a["velocity_modes"].T
-        return velocity.reshape(self.grid.ny, self.grid.nx, 2)
+        return velocity.reshape(self.grid.ny, self.grid.nx, 2), flat, z
 
     # ---------------------------------------------------------- persistence
     def header(self) -> dict:
