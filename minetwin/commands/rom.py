@@ -102,6 +102,13 @@ def _model_options(parser) -> None:
                         help="POD modes of the velocity field (default: cross-validated)")
     parser.add_argument("--ridge", type=float, default=None,
                         help="ridge penalty lambda (default: cross-validated)")
+    parser.add_argument("--target", choices=("velocity", "flux"), default="velocity",
+                        help="field the regression fits: the velocity (default) or the mass "
+                             "flux per cell, divided by the cell's mass for the velocity "
+                             "(surrogate.rom.model)")
+    parser.add_argument("--flux-floor", type=float, default=None,
+                        help="with --target flux: least fill of a full cell the flux is "
+                             "divided by (default: cross-validated among 0.25, 0.5, 1)")
 
 
 def _progress(message: str) -> None:
@@ -112,7 +119,7 @@ def run_train(args) -> int:
     from surrogate.rom.evaluate import train
 
     model = train(args.data, args.out, args.mass_modes, args.velocity_modes, args.ridge,
-                  progress=_progress)
+                  progress=_progress, target=args.target, flux_floor=args.flux_floor)
     print(f"trained on {model.n_samples} samples, grid {model.grid.nx}x{model.grid.ny}, "
           f"modes {model.n_mass_modes}/{model.n_velocity_modes}, ridge {model.ridge:g}; "
           f"wrote {args.out}")
@@ -134,7 +141,8 @@ def run_evaluate(args) -> int:
         with executors.make(args) as executor:
             build_data(data, quick=True, seed=args.seed, progress=_progress, executor=executor)
         model = train(data, data / "rom_model.npz", args.mass_modes, args.velocity_modes,
-                      args.ridge, progress=_progress)
+                      args.ridge, progress=_progress, target=args.target,
+                      flux_floor=args.flux_floor)
         _progress(f"trained on {model.n_samples} samples; model {data / 'rom_model.npz'}")
     else:
         if not (args.model and args.data):

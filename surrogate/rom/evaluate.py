@@ -43,7 +43,8 @@ from cosim.storage import make_storage
 from surrogate.rom import doe, metrics
 from surrogate.rom.dispersion import dispersivity
 from surrogate.rom.grid import Grid, mean_field
-from surrogate.rom.model import RomModel, pod_basis, pod_residual
+from surrogate.rom.model import (FLUX_FLOOR, FLUX_FLOORS, RomModel, flux_samples, pod_basis,
+                                  pod_residual)
 from surrogate.rom.provenance import training_provenance
 
 PERTURBATION = 1e-6
@@ -323,30 +324,44 @@ MODEL_CANDIDATES = [(modes, velocity_modes, ridge)
 
 
 def _fit(grid, container, samples, keep, modes, velocity_modes, ridge,
-         bases=None) -> RomModel:
-    return RomModel(grid, modes, velocity_modes, ridge, container).fit(
+         bases=None, target: str = "velocity", flux_floor: float = FLUX_FLOOR) -> RomModel:
+    return RomModel(grid, modes, velocity_modes, ridge, container, target=target,
+                    flux_floor=flux_floor).fit(
         samples["mass"][keep], samples["discharge_rate"][keep], samples["inflow_rate"][keep],
         samples["velocity"][keep], bases=bases)
 
 
-def leave_one_run_out_errors(grid, samples, candidates) -> dict:
+def leave_one_run_out_errors(grid, samples, candidates, target: str = "velocity",
+                             container=None, floors=None) -> dict:
     """Each candidate ``(modes, velocity modes, ridge)``'s mean velocity-field
     relative error on each training run when the model is fitted on the other
     runs (cross-validation by whole DEM runs). The SVDs of a fold are done once
-    for all candidates."""
-    errors = {candidate: [] for candidate in candidates}
+    for all candidates. With ``target="flux"`` (``container`` needed) the keys are
+    ``(modes, velocity modes, ridge, flux_floor)`` over ``floors`` (default
+    ``FLUX_FLOORS``), the error that of the model's velocity (its flux over the
+    held run's DEM cell mass, floored) against the DEM's, the same metric."""
+    floors = (FLUX_FLOORS if floors is None else tuple(floors)) if target == "flux" else (None,)
+    keys = [c if target == "velocity" else (*c, f) for c in candidates for f in floors]
+    errors = {key: [] for key in keys}
     for run in np.unique(samples["run"]):
         held = samples["run"] == run
-        bases = (pod_basis(samples["mass"][~held]),
-                 pod_basis(samples["velocity"][~held], centred=False))
+        fitted = samples["velocity"][~held]
+        if target == "flux":
+            fitted = flux_samples(samples["mass"][~held], fitted)
+        bases = (pod_basis(samples["mass"][~held]), pod_basis(fitted, centred=False))
         for candidate in candidates:
-            model = _fit(grid, None, samples, ~held, *candidate, bases=bases)
-            predicted = np.array([model.predict(m, q, i, check=False) for m, q, i in
-                                  zip(samples["mass"][held], samples["discharge_rate"][held],
-                                      samples["inflow_rate"][held])])
-            errors[candidate].append(metrics.velocity_field_rel_error(
-                predicted, samples["velocity"][held], samples["mass"][held]))
-    return {candidate: float(np.mean(e)) for candidate, e in errors.items()}
+            model = _fit(grid, container, samples, ~held, *candidate, bases=bases,
+                         target=target)
+            for floor in floors:
+                if floor is not None:
+                    model.flux_floor = floor
+                predicted = np.array([model.predict(m, q, i, check=False) for m, q, i in
+                                      zip(samples["mass"][held], samples["discharge_rate"][held],
+                                          samples["inflow_rate"][held])])
+                key = candidate if floor is None else (*candidate, floor)
+                errors[key].append(metrics.velocity_field_rel_error(
+                    predicted, samples["velocity"][held], samples["mass"][held]))
+    return {key: float(np.mean(e)) for key, e in errors.items()}
 
 
 def leave_one_run_out_residual(samples, n_mass_modes: int) -> float:
@@ -461,8 +476,13 @@ def rom_numerical_dispersivity(model: RomModel, directory, samples: dict,
 
 def train(directory, out=None, n_mass_modes: int | None = None,
           n_velocity_modes: int | None = None, ridge: float | None = None,
-          progress=None) -> RomModel:
+          progress=None, target: str = "velocity",
+          flux_floor: float | None = None) -> RomModel:
     """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it).
+
+    ``target`` (default "velocity"): the field the regression fits (``RomModel``);
+    with "flux" the ``flux_floor`` left ``None`` is chosen among ``FLUX_FLOORS``
+    with the other options.
 
     Options left ``None`` are chosen among ``MODEL_CANDIDATES`` by the
     smallest leave-one-run-out velocity error (recorded in the model's
@@ -483,18 +503,25 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     if not candidates:
         candidates = [(n_mass_modes or 4, n_velocity_modes or n_mass_modes or 4,
                        1.0 if ridge is None else ridge)]
+    container = Container.from_dict(meta["container"])
+    flux = target == "flux"
+    floors = (FLUX_FLOORS if flux_floor is None else (flux_floor,)) if flux else (None,)
     validation = {}
-    if len(candidates) > 1 and np.unique(samples["run"]).size > 1:
-        scores = leave_one_run_out_errors(grid, samples, candidates)
+    if len(candidates) * len(floors) > 1 and np.unique(samples["run"]).size > 1:
+        scores = leave_one_run_out_errors(grid, samples, candidates, target, container,
+                                          floors if flux else None)
         best = min(scores, key=scores.get)
         validation = {"leave_one_run_out_velocity_rel_error": scores[best],
-                      "candidates": {f"{m}/{v}/{r:g}": e for (m, v, r), e in scores.items()}}
+                      "candidates": {"/".join(f"{x:g}" for x in key): e
+                                     for key, e in scores.items()}}
         _say(progress, f"model selection: modes {best[0]}/{best[1]}, ridge {best[2]:g}, "
-                       f"leave-one-run-out velocity error {scores[best]:.3f}")
+                       + (f"flux floor {best[3]:g}, " if flux else "")
+                       + f"leave-one-run-out velocity error {scores[best]:.3f}")
     else:
-        best = candidates[0]
-    model = _fit(grid, Container.from_dict(meta["container"]), samples,
-                 np.ones(samples["run"].size, dtype=bool), *best)
+        best = (*candidates[0], floors[0]) if flux else candidates[0]
+    model = _fit(grid, container, samples, np.ones(samples["run"].size, dtype=bool),
+                 *best[:3], target=target,
+                 flux_floor=best[3] if flux else FLUX_FLOOR)
     if np.unique(samples["run"]).size > 1:
         seen = model.ranges["mass_distribution_residual"][1]
         unseen = leave_one_run_out_residual(samples, best[0])
@@ -515,9 +542,11 @@ def train(directory, out=None, n_mass_modes: int | None = None,
                        + ("" if own is None else f"{own:.4f} m shown by the ROM without its "
                           "random walk, ") + f"{model.dispersivity:.4f} m applied")
     if out is not None:
-        model.provenance = training_provenance(
-            directory, out, {"mass_modes": n_mass_modes, "velocity_modes": n_velocity_modes,
-                             "ridge": ridge})
+        options = {"mass_modes": n_mass_modes, "velocity_modes": n_velocity_modes,
+                   "ridge": ridge}
+        if flux:  # a velocity fit's provenance stays as it was
+            options.update(target=target, flux_floor=flux_floor)
+        model.provenance = training_provenance(directory, out, options)
         model.save(out)
     return model
 

@@ -26,6 +26,27 @@ Equations (our implementation):
 Parameters: ``n_mass_modes`` (default 12), ``n_velocity_modes`` (default
 16), ``ridge`` lambda (default 1e-2, dimensionless: features are O(1)).
 
+Fitted field (``target``, default "velocity", the above). ``target="flux"``
+fits the cell's mass flux instead: F = M V [kg m/s per cell], the mass field
+times the (mass-weighted) velocity field of the same sample, i.e. the DEM
+cell's summed particle momentum over its particles' mass-weighted
+displacement, reduced by the same uncentred POD and regressed on the same
+features (the model's ``velocity_*`` arrays then hold F's modes, mean and
+scales, in kg m/s). The velocity the model returns is the predicted flux over
+the cell mass it is given: V = F / max(M, f0 M_full), M_full = rho_A dx dy the
+mass of a full cell (``Container.areal_density``), f0 = ``flux_floor`` [-]
+(default ``FLUX_FLOOR`` = 0.5; ``minetwin rom train --target flux`` chooses it
+among ``FLUX_FLOORS`` by the same leave-one-run-out error). In the filled
+cells (M >= f0 M_full) the velocity carries exactly the fitted flux; in a
+cell with less mass (a surface cell, a cell the ROM has just emptied) the
+floor keeps a flux fitted on DEM cells with a different fill from becoming
+an unbounded speed (f0 = 1 passes the flux per full cell, F / M_full, i.e.
+the volume flux the balanced transport's bulk faces carry, to the transport
+directly). Why: the velocity fit weights every cell alike, so it spreads
+its error over the thin surface cells and under-resolves the funnel core;
+the flux is what the transport must carry through every row (the diagnosis
+in surrogate/rom/README.md, "What limits the accuracy now").
+
 The model file (``save``/``load``) is one ``.npz`` holding the arrays and a
 JSON header with the format version, the grid, the options and the training
 ranges of every input. ``predict`` warns (``OutOfTrainingRange``) naming the
@@ -57,6 +78,15 @@ RATE_SCALE = 1000.0
 RANGE_MARGIN = 0.05
 """Relative slack on the training ranges before ``predict`` warns."""
 
+TARGETS = ("velocity", "flux")
+"""Accepted values of ``RomModel(target=...)``: the field the regression fits."""
+
+FLUX_FLOOR = 0.5
+"""Default least fill [-] of a full cell's mass that ``target="flux"`` divides by."""
+
+FLUX_FLOORS = (0.25, 0.5, 1.0)
+"""Fills tried for ``flux_floor`` by ``minetwin rom train --target flux``."""
+
 
 class OutOfTrainingRange(UserWarning):
     """An input to the ROM lies outside the range it was trained on."""
@@ -79,6 +109,14 @@ def _pod(basis: tuple, modes: int):
     scale = singular[:modes] / np.sqrt(count)
     scale = np.where(scale > 0, scale, 1.0)
     return mean, vt[:modes].T.copy(), scale
+
+
+def flux_samples(mass, velocity) -> np.ndarray:
+    """Mass flux M V [kg m/s per cell] of samples: ``mass`` (S, ny, nx) or (S, cells)
+    [kg] times ``velocity`` (S, ny, nx, 2) or (S, 2 cells) [m/s], flattened (S, 2 cells)."""
+    mass = np.asarray(mass, dtype=np.float64).reshape(len(mass), -1)
+    velocity = np.asarray(velocity, dtype=np.float64).reshape(len(velocity), -1, 2)
+    return (velocity * mass[:, :, None]).reshape(len(mass), -1)
 
 
 def pod_residual(basis: tuple, modes: int, mass) -> np.ndarray:
@@ -121,7 +159,15 @@ class RomModel:
 
     def __init__(self, grid: Grid, n_mass_modes: int = 12, n_velocity_modes: int = 16,
                  ridge: float = 1e-2, container: Container | None = None,
-                 dem_config: dict | None = None):
+                 dem_config: dict | None = None, target: str = "velocity",
+                 flux_floor: float = FLUX_FLOOR):
+        if target not in TARGETS:
+            raise ValidationError("target", f"one of {TARGETS}", f"got {target!r}")
+        if target == "flux" and container is None:
+            raise ValidationError("container", "a container (its areal density) for "
+                                  "target 'flux'", "got None")
+        if not 0 < flux_floor:
+            raise ValidationError("flux_floor", "> 0", f"got {flux_floor!r}")
         if n_mass_modes < 1 or n_velocity_modes < 1:
             raise ValidationError("modes", ">= 1", f"got {n_mass_modes}, {n_velocity_modes}")
         if not ridge >= 0:
@@ -132,6 +178,8 @@ class RomModel:
         self.ridge = float(ridge)
         self.container = container
         self.dem_config = dem_config
+        self.target = target
+        self.flux_floor = float(flux_floor)
         self.dispersivity = 0.0
         self.arrays: dict[str, np.ndarray] = {}
         self.ranges: dict[str, list[float]] = {}
@@ -154,10 +202,14 @@ class RomModel:
         bases : (mass basis, velocity basis), optional
             ``pod_basis`` of these very mass (centred) and velocity (uncentred)
             samples, to fit models of several mode counts without redoing the
-            SVDs (model selection); the result is the same as without.
+            SVDs (model selection); the result is the same as without. With
+            ``target="flux"`` the velocity basis is that of the flux
+            (``flux_samples``).
         """
         mass = np.asarray(mass, dtype=np.float64).reshape(len(mass), -1)
         velocity = np.asarray(velocity, dtype=np.float64).reshape(len(velocity), -1)
+        if self.target == "flux" and velocity.shape[1] == 2 * mass.shape[1]:
+            velocity = flux_samples(mass, velocity)
         q_out = np.asarray(discharge_rate, dtype=np.float64)
         q_in = np.asarray(inflow_rate, dtype=np.float64)
         samples = mass.shape[0]
@@ -244,9 +296,46 @@ class RomModel:
                 messages[name] = message
         return messages
 
+    @property
+    def full_cell_mass(self) -> float:
+        """Mass [kg] of a full cell, rho_A dx dy (``nan`` without a container)."""
+        if self.container is None:
+            return float("nan")
+        return self.container.areal_density * self.grid.dx * self.grid.dy
+
     def predict(self, mass, discharge_rate: float, inflow_rate: float = 0.0,
                 check: bool = True) -> np.ndarray:
-        """Velocity field [m/s], ``(ny, nx, 2)``, for one mass field ``(ny, nx)`` and rates."""
+        """Velocity field [m/s], ``(ny, nx, 2)``, for one mass field ``(ny, nx)`` [kg]
+        and rates [kg/s]; with ``target="flux"`` the predicted flux over
+        max(mass, ``flux_floor`` full cells) (module docstring)."""
+        field, flat, z = self._fitted_field(mass, discharge_rate, inflow_rate)
+        if check:  # here, so that the warning names the caller of predict
+            self.check_ranges(flat, discharge_rate, inflow_rate,
+                              float(self._residual(flat, z)[0]))
+        if self.target == "velocity":
+            return field
+        return field / self._divisor(mass)[..., None]
+
+    def predict_flux(self, mass, discharge_rate: float, inflow_rate: float = 0.0,
+                     check: bool = True) -> np.ndarray:
+        """Mass flux [kg m/s per cell], ``(ny, nx, 2)``: the fitted flux
+        (``target="flux"``) or the mass field times the predicted velocity."""
+        field, flat, z = self._fitted_field(mass, discharge_rate, inflow_rate)
+        if check:
+            self.check_ranges(flat, discharge_rate, inflow_rate,
+                              float(self._residual(flat, z)[0]))
+        if self.target == "flux":
+            return field
+        return field * np.asarray(mass, dtype=np.float64).reshape(self.grid.ny, self.grid.nx, 1)
+
+    def _divisor(self, mass) -> np.ndarray:
+        """max(M, flux_floor M_full) [kg] per cell (ny, nx)."""
+        mass = np.asarray(mass, dtype=np.float64).reshape(self.grid.ny, self.grid.nx)
+        return np.maximum(mass, self.flux_floor * self.full_cell_mass)
+
+    def _fitted_field(self, mass, discharge_rate: float, inflow_rate: float) -> tuple:
+        """``(field, flat mass, z)``: the regressed field (``target``'s unit),
+        ``(ny, nx, 2)``, the mass field (1, cells) and its POD coefficients."""
         if not self.trained:
             raise ValidationError("model", "a trained model (call fit or load first)")
         a = self.arrays
@@ -255,15 +344,20 @@ class RomModel:
             raise ValidationError("mass", f"a field on the {self.grid.shape} grid",
                                   f"got {flat.shape[1]} values")
         z = (flat - a["mass_mean"]) @ a["mass_modes"] / a["mass_scale"]
-        if check:
-            self.check_ranges(flat, discharge_rate, inflow_rate,
-                              float(self._residual(flat, z)[0]))
         coefficients = self._features(z, discharge_rate, inflow_rate) @ a["weights"]
         velocity = a["velocity_mean"] + (coefficients * a["velocity_scale"]) @ a["velocity_modes"].T
-        return velocity.reshape(self.grid.ny, self.grid.nx, 2)
+        return velocity.reshape(self.grid.ny, self.grid.nx, 2), flat, z
 
     # ---------------------------------------------------------- persistence
     def header(self) -> dict:
+        """The file's JSON header; ``target`` and ``flux_floor`` are written for a flux
+        fit only (a file without them is a velocity fit, as every file before them)."""
+        header = self._header()
+        if self.target != "velocity":
+            header.update(target=self.target, flux_floor=self.flux_floor)
+        return header
+
+    def _header(self) -> dict:
         return {"format": "minetwin-rom", "version": FORMAT_VERSION,
                 "grid": self.grid.to_dict(), "n_mass_modes": self.n_mass_modes,
                 "n_velocity_modes": self.n_velocity_modes, "ridge": self.ridge,
@@ -304,7 +398,8 @@ class RomModel:
                     header["n_velocity_modes"], header["ridge"],
                     None if header.get("container") is None
                     else Container.from_dict(header["container"]),
-                    header.get("dem_config"))
+                    header.get("dem_config"), header.get("target", "velocity"),
+                    float(header.get("flux_floor", FLUX_FLOOR)))
         model.arrays = arrays
         model.ranges = {k: list(v) for k, v in header["ranges"].items()}
         model.n_samples = int(header["n_samples"])

@@ -12,7 +12,9 @@ One step of ``dt`` [s] is split into substeps of at most ``max_step`` [s]:
 1. every ``update_interval`` [s] (and whenever the discharge rate changes)
    the mass field M of the held particles is sampled on the model grid and
    the velocity field is predicted, v = ROM(M, q_out, q_in), with q_in the
-   inflow rate [kg/s] averaged over the last ``inflow_window`` seconds; the
+   inflow rate [kg/s] averaged over the last ``inflow_window`` seconds (a
+   model file fitted to the mass flux, ``RomModel(target="flux")``, gives
+   its predicted flux over this M, floored: ``surrogate.rom.model``); the
    regressed field is not mass-conserving, so with ``transport="balanced"``
    (default) it is projected on the grid onto the nearest field that keeps
    the settled bulk at its density, with the feeder as its sink and the

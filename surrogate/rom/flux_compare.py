@@ -1,0 +1,321 @@
+"""Velocity fit against mass-flux fit on the training design, run by run.
+
+Source: the diagnosis in surrogate/rom/README.md ("What limits the accuracy
+now"): on the 2 t/s scene the fitted field's upper funnel core is too slow
+and the flux it carries down through a row is not the feeder's. This module
+measures the same two things by leave-one-run-out cross-validation on the
+training design only (no held-out scene enters): each run's states are
+predicted by a model fitted on the other runs (``RomModel``, ``target``
+"velocity" or "flux", the same POD + ridge regression; the flux model's
+velocity is its flux over the run's DEM cell mass, floored, as the storage
+uses it at the ROM's mass).
+
+Quantities (per run discharging at least ``kinematic.LEAST_DISCHARGE`` =
+100 kg/s, time means over its states):
+
+- axis speed [m/s]: the time-mean downward speed -v_y of the cells within
+  ``kinematic.AXIS_HALF_WIDTH`` = 3 m of the outlet, in the rows whose axis
+  cells are bulk (DEM fill >= ``kinematic.BULK_FILL`` = 0.7) in at least 90 %
+  of the states; reported as the RMS difference from the DEM's over those
+  cells, and the mean over the upper half of those rows (the "upper core").
+- row flux [m^2/s]: Phi_j = sum_i (M_ij / M_full) (-v_y,ij) dx, the downward
+  flux through row j with the DEM's cell fill as weight (M_full = rho_A dx dy),
+  time-mean; reported as the RMS difference from the DEM's over the same rows
+  and, for scale, the discharge's q_out / rho_A.
+- field error: ``metrics.velocity_field_rel_error`` of the run's states (the
+  model selection's criterion).
+
+Parameters: ``velocity`` and ``flux`` are (mass modes, velocity modes, ridge)
+and (mass modes, flux modes, ridge, flux floor) [-]; the defaults are what
+the selections chose on the paper design (velocity: the shipped model,
+4/4/100; flux: ``minetwin rom train --target flux``'s choice).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from surrogate.rom import doe, metrics
+from surrogate.rom.container import Container
+from surrogate.rom.grid import Grid
+from surrogate.rom.kinematic import AXIS_HALF_WIDTH, BULK_FILL, LEAST_DISCHARGE
+from surrogate.rom.model import RomModel
+
+
+def _rms(values) -> float:
+    values = np.asarray(values, dtype=np.float64).ravel()
+    return float(np.linalg.norm(values) / max(values.size, 1) ** 0.5)
+
+
+def compare(directory, velocity=(4, 4, 100.0), flux=(4, 4, 100.0, 0.5)) -> dict:
+    """``{run name: {...}}``: the module docstring's quantities for the DEM, the
+    velocity fit and the flux fit, each fitted without the run."""
+    meta = doe.read_meta(directory)
+    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
+    samples = doe.load_samples(directory)
+    names = [f.stem for f in sorted(Path(directory, "train").glob("*.npz"))]
+    x, y = grid.centres()
+    axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
+    full = container.areal_density * grid.dx * grid.dy
+    out = {}
+    for number, name in enumerate(names):
+        held = samples["run"] == number
+        used = held & (samples["discharge_rate"] >= LEAST_DISCHARGE)
+        if not used.any():
+            continue
+        models = {
+            "velocity": RomModel(grid, *velocity, container),
+            "flux": RomModel(grid, *flux[:3], container, target="flux", flux_floor=flux[3]),
+        }
+        for model in models.values():
+            model.fit(samples["mass"][~held], samples["discharge_rate"][~held],
+                      samples["inflow_rate"][~held], samples["velocity"][~held])
+        mass = samples["mass"][used].astype(np.float64)
+        rates = samples["discharge_rate"][used].astype(np.float64)
+        fields = {"dem": samples["velocity"][used].astype(np.float64)}
+        for key, model in models.items():
+            fields[key] = np.array([model.predict(m, q, i, check=False) for m, q, i in
+                                    zip(mass, rates, samples["inflow_rate"][used])])
+        kept = (mass >= BULK_FILL * full).mean(0) >= 0.9
+        rows = [j for j in range(grid.ny) if kept[j, axis].all()]
+        upper = rows[len(rows) // 2:]
+        speed = {k: -f[..., 1].mean(0) for k, f in fields.items()}
+        row_flux = {k: (-(mass / full) * f[..., 1]).mean(0).sum(1) * grid.dx
+                    for k, f in fields.items()}
+        entry = {"samples": int(used.sum()), "discharge_rate": float(rates.mean()),
+                 "q_over_rho": float(rates.mean() / container.areal_density),
+                 "rows": [float(y[j]) for j in rows],
+                 "upper_axis_speed": {k: float(s[upper][:, axis].mean()) if upper else None
+                                      for k, s in speed.items()},
+                 "row_flux": {k: [float(f[j]) for j in rows] for k, f in row_flux.items()}}
+        for key in models:
+            entry[key] = {
+                "axis_speed_rms": _rms(speed[key][rows][:, axis] - speed["dem"][rows][:, axis]),
+                "row_flux_rms": _rms(row_flux[key][rows] - row_flux["dem"][rows]),
+                "field_rel_error": metrics.velocity_field_rel_error(
+                    fields[key], fields["dem"], mass)}
+        out[name] = entry
+    return out
+
+
+def projection_ceiling(directory, modes=(4, 8, 16), flux_floor: float = 0.5) -> dict:
+    """``{run name: {"velocity"|"flux": {modes: (upper-core axis speed, top-row
+    flux)}}}`` plus the DEM's (``"dem"``): each run's DEM field projected onto
+    the first ``modes`` POD modes of the other runs' velocity (uncentred) or flux
+    (the flux then over the DEM cell mass floored at ``flux_floor`` full cells):
+    what a fit with that many modes could at best reproduce (same rows and
+    cells as ``compare``)."""
+    from surrogate.rom.model import flux_samples, pod_basis
+
+    meta = doe.read_meta(directory)
+    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
+    samples = doe.load_samples(directory)
+    names = [f.stem for f in sorted(Path(directory, "train").glob("*.npz"))]
+    x, _ = grid.centres()
+    axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
+    full = container.areal_density * grid.dx * grid.dy
+    shape = (-1, grid.ny, grid.nx, 2)
+    out = {}
+    for number, name in enumerate(names):
+        held = samples["run"] == number
+        used = held & (samples["discharge_rate"] >= LEAST_DISCHARGE)
+        if not used.any():
+            continue
+        mass = samples["mass"][used].astype(np.float64)
+        kept = (mass >= BULK_FILL * full).mean(0) >= 0.9
+        rows = [j for j in range(grid.ny) if kept[j, axis].all()]
+        upper = rows[len(rows) // 2:]
+
+        def summary(field):
+            speed = -field[..., 1].mean(0)
+            row = (-(mass / full) * field[..., 1]).mean(0).sum(1) * grid.dx
+            return float(speed[upper][:, axis].mean()), float(row[rows[-1]])
+
+        dem = samples["velocity"][used].astype(np.float64)
+        entry = {"dem": summary(dem)}
+        divisor = np.maximum(mass, flux_floor * full)[..., None]
+        for target in ("velocity", "flux"):
+            train = samples["velocity"][~held]
+            here = dem.reshape(len(dem), -1)
+            if target == "flux":
+                train = flux_samples(samples["mass"][~held], train)
+                here = flux_samples(mass, dem)
+            _, _, vt, _ = pod_basis(train, centred=False)
+            entry[target] = {}
+            for k in modes:
+                projected = ((here @ vt[:k].T) @ vt[:k]).reshape(shape)
+                if target == "flux":
+                    projected = projected / divisor
+                entry[target][k] = summary(projected)
+        out[name] = entry
+    return out
+
+
+def _pile(grid: Grid, cells: np.ndarray, pool: np.ndarray, rng) -> tuple:
+    """Particles (masses drawn from ``pool`` [kg]) filling the cells of the mass
+    field ``cells`` (ny, nx) [kg] cell by cell, uniform within each cell [m]."""
+    target = np.asarray(cells, dtype=np.float64).ravel()
+    count = int(target.sum() / pool.mean() * 1.3) + 16
+    mass = rng.choice(pool, count)
+    centre = np.cumsum(mass) - 0.5 * mass
+    keep = centre < target.sum()
+    mass, centre = mass[keep], centre[keep]
+    cell = np.minimum(np.searchsorted(np.cumsum(target), centre, side="right"), target.size - 1)
+    row, column = np.divmod(cell, grid.nx)
+    position = np.stack([grid.x_min + (column + rng.random(cell.size)) * grid.dx,
+                         grid.y_min + (row + rng.random(cell.size)) * grid.dy], axis=1)
+    return mass, position
+
+
+def closed_loop(directory, models: dict, runs=None, seed: int = 0) -> dict:
+    """``{run: {"dem" | model name: {...}}}``: each ``RomStorage`` (default options,
+    the model files ``models`` {name: path}) started from a training run's first
+    mass field (particles drawn from the masses the design's DEM runs discharged),
+    every run commanded at least ``LEAST_DISCHARGE``, driven at the
+    run's commanded discharge and mean inflow for as many seconds as it was
+    sampled, its own fields sampled once per ``doe.CONTROL_STEP``: time-mean
+    upper-core axis speed [m/s] of the field the bulk moved by (projected) and of
+    the model's prediction at the ROM's mass (before the projection), the ROM's
+    upper-core fill [-] and its top-row flux [m^2/s] (rows and cells as in
+    ``compare``, fixed by the DEM run), the axis speed row by row and the
+    speed and fill of the feeder's row over the opening. Training data only."""
+    import warnings
+
+    from cosim.particles import ParticleStore
+    from surrogate.rom.storage import RomStorage
+
+    meta = doe.read_meta(directory)
+    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
+    samples = doe.load_samples(directory)
+    files = sorted(Path(directory, "train").glob("*.npz"))
+    x, _ = grid.centres()
+    axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
+    full = container.areal_density * grid.dx * grid.dy
+    pools, setpoints = [], []
+    for path in files:
+        with np.load(path) as data:
+            pools.append(np.asarray(data["out_mass"], dtype=np.float64))
+            setpoints.append(float(data["setpoint"][0]))
+    pool = np.concatenate(pools)  # every run's discharged masses
+    out = {}
+    for number, path in enumerate(files):
+        setpoint = setpoints[number]
+        if (runs is not None and path.stem not in runs) or setpoint < LEAST_DISCHARGE:
+            continue
+        rows_used = np.flatnonzero(samples["run"] == number)
+        mass_dem = samples["mass"][rows_used].astype(np.float64)
+        kept = (mass_dem >= BULK_FILL * full).mean(0) >= 0.9
+        rows = [j for j in range(grid.ny) if kept[j, axis].all()]
+        upper = rows[len(rows) // 2:]
+        inflow = float(samples["inflow_rate"][rows_used].mean())
+        opening = np.abs(x - container.outlet_x) <= 0.5 * container.outlet_width
+
+        def summary(mass, field):
+            speed = -field[..., 1].mean(0)
+            row = (-(mass / full) * field[..., 1]).mean(0).sum(1) * grid.dx
+            fill = mass.mean(0) / full
+            return {"upper_axis_speed": float(speed[upper][:, axis].mean()),
+                    "upper_axis_fill": float(fill[upper][:, axis].mean()),
+                    "top_row_flux": float(row[rows[-1]]),
+                    "axis_speed_by_row": [float(speed[j, axis].mean()) for j in rows],
+                    "feeder_row_speed": [float(v) for v in speed[0, opening]],
+                    "feeder_row_fill": [float(v) for v in fill[0, opening]]}
+
+        entry = {"dem": summary(mass_dem, samples["velocity"][rows_used].astype(np.float64))}
+        for name, model_path in models.items():
+            rng = np.random.default_rng(seed)
+            model = RomModel.load(model_path)
+            mass, position = _pile(grid, mass_dem[0], pool, rng)
+            steps = rows_used.size
+            fed = rng.choice(pool, int(inflow * steps * doe.CONTROL_STEP / pool.min()) + 1)
+            arrival = np.searchsorted(np.cumsum(fed), inflow * doe.CONTROL_STEP
+                                      * np.arange(1, steps + 1), side="right")
+            store = ParticleStore(capacity=4096)
+            ids = store.add(mass=mass, f=doe.FEED_F, grade=np.full(mass.size, 0.01),
+                            hardness=np.ones(mass.size), owner=1, time=0.0)
+            storage = RomStorage(model, rng=np.random.default_rng(seed))
+            storage.bind(store, 1)
+            storage.place(ids, position)
+            masses, moved, predicted, first = [], [], [], 0
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                for k in range(steps):
+                    t = k * doe.CONTROL_STEP
+                    if arrival[k] > first:
+                        count = arrival[k] - first
+                        new = store.add(mass=fed[first:arrival[k]], f=doe.FEED_F,
+                                        grade=np.full(count, 0.01), hardness=np.ones(count),
+                                        owner=1, time=t)
+                        storage.receive(new, t)
+                        first = arrival[k]
+                    leaving = storage.step(t, doe.CONTROL_STEP, setpoint)
+                    store.remove_slots(store.slots(leaving))
+                    fields = storage.fields()
+                    masses.append(fields["mass"])
+                    moved.append(np.array(fields["velocity"], dtype=np.float64))
+                    predicted.append(storage.predicted_field(fields["mass"], setpoint, inflow))
+            masses = np.array(masses)
+            entry[name] = {**summary(masses, np.array(moved)),
+                           "predicted": summary(masses, np.array(predicted))}
+        out[path.stem] = entry
+    return out
+
+
+def table(report: dict) -> str:
+    """The comparison as a Markdown table (velocity fit / flux fit per column)."""
+    lines = ["| run | q_out [kg/s] | axis speed RMS error [m/s] | upper-core axis speed "
+             "DEM / vel / flux [m/s] | row flux RMS error [m^2/s] (q/rho_A) | row flux in the "
+             "top axis row DEM / vel / flux [m^2/s] | field error |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for name, e in report.items():
+        up = e["upper_axis_speed"]
+        top = {k: v[-1] if v else float("nan") for k, v in e["row_flux"].items()}
+        lines.append(
+            f"| {name} | {e['discharge_rate']:.0f} | {e['velocity']['axis_speed_rms']:.3f} / "
+            f"{e['flux']['axis_speed_rms']:.3f} | {up['dem']:.3f} / {up['velocity']:.3f} / "
+            f"{up['flux']:.3f} | {e['velocity']['row_flux_rms']:.2f} / "
+            f"{e['flux']['row_flux_rms']:.2f} ({e['q_over_rho']:.2f}) | {top['dem']:.2f} / "
+            f"{top['velocity']:.2f} / {top['flux']:.2f} | "
+            f"{e['velocity']['field_rel_error']:.3f} / {e['flux']['field_rel_error']:.3f} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    import argparse
+    import json
+
+    parser = argparse.ArgumentParser(description="Velocity fit against mass-flux fit on a "
+                                                 "training design, leave one run out "
+                                                 "(surrogate.rom.flux_compare)")
+    parser.add_argument("--data", required=True, help="design folder (doe.json, train/*.npz)")
+    parser.add_argument("--velocity", default="4,4,100",
+                        help="velocity fit: mass modes, velocity modes, ridge")
+    parser.add_argument("--flux", default="4,4,100,0.5",
+                        help="flux fit: mass modes, flux modes, ridge, flux floor")
+    parser.add_argument("--json", default=None, help="also write the report here")
+    parser.add_argument("--ceiling", action="store_true",
+                        help="instead: the DEM fields projected onto 4, 8 and 16 POD modes "
+                             "of the other runs (projection_ceiling), as JSON")
+    parser.add_argument("--closed-loop", metavar="NAME=MODEL,...", default=None,
+                        help="instead: run the ROM with these model files through the "
+                             "training runs (closed_loop), as JSON")
+    parser.add_argument("--runs", default=None,
+                        help="with --closed-loop: run names, comma-separated")
+    args = parser.parse_args()
+    if args.ceiling:
+        print(json.dumps(projection_ceiling(args.data), indent=1))
+        raise SystemExit(0)
+    if args.closed_loop:
+        names = dict(item.split("=", 1) for item in args.closed_loop.split(","))
+        print(json.dumps(closed_loop(args.data, names, args.runs.split(",") if args.runs
+                                     else None), indent=1))
+        raise SystemExit(0)
+    v = [float(a) for a in args.velocity.split(",")]
+    f = [float(a) for a in args.flux.split(",")]
+    report = compare(args.data, (int(v[0]), int(v[1]), v[2]),
+                     (int(f[0]), int(f[1]), f[2], f[3]))
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=1))
+    print(table(report))
