@@ -156,7 +156,7 @@ def plot(result: dict, path: Path, window: float) -> None:
     fig.legend(shown.values(), shown.keys(), fontsize=7, loc="lower center", ncol=4,
                frameon=False)
     plotstyle.title(fig, "Paper-scale stockpile: tracking error against compute",
-                    f"held-out scenes, {window:g} s windows; DEM: CPU time, storage models: "
+                    f"{window:g} s windows; DEM: CPU time, storage models: "
                     "wall time on one core")
     fig.tight_layout(rect=(0.0, 0.13, 1.0, 1.0))
     plotstyle.save(fig, path, dpi=120)
