@@ -482,3 +482,23 @@ def _choices_agree_with_every_model_run(summary: dict, scored: dict) -> None:
         assert all(measured[name] > target for name in measured
                    if cost[name] < cost[choice.model]), (target, measured, cost)
     assert "dem" in chosen or measured["dem"] > min(measured.values())
+
+
+def test_the_rock_scene_is_the_heldout_pile_at_rock_stiffness_for_both_methods():
+    """``paper_rock``: the held-out 17,500-disk pile at 1e10 N/m, its step the same
+    fraction of the (16 times shorter) contact time; ``paper_rock_nonsmooth``: the
+    same scene, pile and seeds by the nonsmooth method at the paper's 11 ms."""
+    soft, rock, nonsmooth = (pd.get_design(name) for name in
+                             ("paper_heldout", "paper_rock", "paper_rock_nonsmooth"))
+    assert rock.config.normal_stiffness == pd.ROCK_STIFFNESS == 1e10
+    assert nonsmooth.config.normal_stiffness == pd.ROCK_STIFFNESS
+    assert rock.config.method == "explicit" and nonsmooth.config.method == "nonsmooth"
+    assert soft.config.contact_time / rock.config.contact_time == pytest.approx(
+        (1e10 / soft.config.normal_stiffness) ** 0.5)
+    assert rock.config.stable_dt / rock.config.contact_time == pytest.approx(pd.STEP_FRACTION)
+    assert rock.piles == soft.piles == nonsmooth.piles  # the same laid-out disks
+    assert len({pd.pile_key(d, d.piles[0]) for d in (soft, rock, nonsmooth)}) == 3
+    assert [r.replica for r in rock.runs] == [0, 1, 2]
+    assert [r.name for r in nonsmooth.runs] == [rock.runs[0].name]
+    assert nonsmooth.runs[0] == rock.runs[0]  # same feeder, seed and tracking ids
+    assert all(r.duration == pd.ROCK_DURATION and r.inflow_rate == 0.0 for r in rock.runs)
