@@ -19,7 +19,12 @@ averaged) is drawn against its compute per simulated second:
   the time it lasted; a run whose feeder delivered under 0.9 of the explicit
   replicas' mass (``method_score.JAM_DELIVERED_SHARE``) is marked jammed.
 
-Per scored scene, ``scene_<scene>.png`` shows the discharged mass over time
+``--method-data`` may be repeated (the same scenes run at other settings, e.g.
+``minetwin rom design --design paper_rock_nonsmooth --set solver_iterations=200``):
+each is one more point per scene.
+
+Per scored scene and method, ``scene_<scene>_<settings>.png`` (e.g.
+``scene_heldout_q2000_nonsmooth_11ms_100sweeps.png``) shows the discharged mass over time
 (the method, every explicit replica, the set point) and the pile at the end
 (areal mass on the ROM grid) of explicit replica 0 and of the method: where a
 jam shows.
@@ -59,12 +64,30 @@ EVALUATION = ROOT / "surrogate" / "rom" / "data" / "fidelity" / "paper_heldout_e
 REFERENCE = ROOT / "surrogate" / "rom" / "data" / "paper_heldout"
 
 
-def points(evaluation: dict, methods: dict) -> dict:
+def label_of(methods: dict) -> str:
+    """The method and its settings, e.g. "nonsmooth DEM, 11 ms, 100 sweeps"."""
+    settings = methods["method_settings"]
+    if methods["method"] != "nonsmooth":
+        return f"{methods['method']} DEM"
+    return (f"nonsmooth DEM, {settings['nonsmooth_dt'] * 1e3:g} ms, "
+            f"{settings['solver_iterations']} sweeps")
+
+
+def slug_of(methods: dict) -> str:
+    """``label_of`` as a file name part, e.g. "nonsmooth_11ms_100sweeps"."""
+    return "_".join(part.strip().replace(" DEM", "").replace(" ", "")
+                    for part in label_of(methods).split(","))
+
+
+def points(evaluation: dict, runs: list[dict]) -> dict:
     """Per scene: ``[{"model", "tracking_error", "cost_s_per_s", "cost_kind"}]``: the
-    storage models where the evaluation holds the scene, then both DEM methods."""
+    storage models where the evaluation holds the scene, the explicit DEM (its noise
+    floor), then each scored method (``runs``: ``score_dem_method`` results against
+    the same reference) with its ``label``."""
     out = {}
-    scenes = [s for s in methods["explicit_costs"]
-              if s in methods["scenes"] or s in methods["failed"]
+    explicit_costs = runs[0]["explicit_costs"]
+    scenes = [s for s in explicit_costs
+              if any(s in m["scenes"] or s in m["failed"] for m in runs)
               or s in evaluation["scenarios"]]
     for scene in scenes:
         row = evaluation["scenarios"].get(scene)
@@ -72,31 +95,36 @@ def points(evaluation: dict, methods: dict) -> dict:
             {"model": name, "tracking_error": row["tracking_error"][name],
              "cost_s_per_s": row["wall_s_per_simulated_s"][name], "cost_kind": "wall"}
             for name in ("fifo", "mixing", "rom")]
-        scored = methods["scenes"].get(scene)
-        explicit_cost = methods["explicit_costs"].get(scene)
-        floor = (scored["tracking_error_dem_noise_floor"] if scored is not None
+        scored = [m["scenes"][scene] for m in runs if scene in m["scenes"]]
+        floor = (scored[0]["tracking_error_dem_noise_floor"] if scored
                  else None if row is None else row["tracking_error_dem_noise_floor"])
+        explicit_cost = explicit_costs.get(scene)
         rows.append({"model": "dem_explicit", "tracking_error": floor,
                      "cost_s_per_s": (explicit_cost["cpu_s_per_simulated_s"]
                                       if explicit_cost and floor is not None else None),
                      "cost_kind": "cpu"})
-        failed = methods["failed"].get(scene)
-        if scored is not None:
-            rows.append({"model": f"dem_{methods['method']}",
-                         "tracking_error": scored["tracking_error"],
-                         "spread": scored["tracking_error_spread"],
-                         "cost_s_per_s": scored["method_cost"]["cpu_s_per_simulated_s"],
-                         "cost_kind": "cpu", "jammed": scored["jammed"],
-                         "discharged_kg": scored["discharged_kg"],
-                         "explicit_discharged_kg": scored["explicit_discharged_kg"]})
-        elif failed is not None:  # no outflow to score: where and when it blew up
-            rows.append({"model": f"dem_{methods['method']}", "tracking_error": None,
-                         "blew_up_after_s": failed["after_s"], "reason": failed["reason"],
-                         "cost_s_per_s": failed["method_cost"]["cpu_s_per_simulated_s"],
-                         "cost_kind": "cpu"})
+        for index, methods in enumerate(runs):
+            common = {"model": f"dem_{methods['method']}", "label": label_of(methods),
+                      "index": index, "cost_kind": "cpu"}
+            method_row = methods["scenes"].get(scene)
+            failed = methods["failed"].get(scene)
+            if method_row is not None:
+                rows.append({**common, "tracking_error": method_row["tracking_error"],
+                             "spread": method_row["tracking_error_spread"],
+                             "cost_s_per_s": method_row["method_cost"]["cpu_s_per_simulated_s"],
+                             "jammed": method_row["jammed"],
+                             "discharged_kg": method_row["discharged_kg"],
+                             "explicit_discharged_kg": method_row["explicit_discharged_kg"]})
+            elif failed is not None:  # no outflow to score: where and when it blew up
+                rows.append({**common, "tracking_error": None,
+                             "blew_up_after_s": failed["after_s"], "reason": failed["reason"],
+                             "cost_s_per_s": failed["method_cost"]["cpu_s_per_simulated_s"]})
         out[scene] = rows
     return out
 
+
+METHOD_COLOURS = ("tab:purple", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:gray")
+METHOD_MARKERS = ("D", "v", "^", "<", ">", "P")
 
 BLOWN_UP_ROW = 1.0
 """Where a run that blew up is drawn (it has no tracking error): error 1, nothing
@@ -112,13 +140,14 @@ def plot(result: dict, path: Path, window: float) -> None:
                              squeeze=False)
     style = {"fifo": ("tab:red", "o", "FIFO"), "mixing": ("tab:orange", "o", "perfect mixing"),
              "rom": ("tab:blue", "o", "ROM (shipped)"),
-             "dem_explicit": ("tab:green", "s", "explicit DEM, 0.16 t_c (its noise floor)"),
-             "dem_nonsmooth": ("tab:purple", "D", "nonsmooth DEM, 11 ms, 100 sweeps")}
+             "dem_explicit": ("tab:green", "s", "explicit DEM, 0.16 t_c (its noise floor)")}
     for ax, scene in zip(axes[0], scenes):
         for p in result["points"][scene]:
             if p["cost_s_per_s"] is None:
                 continue
-            colour, marker, label = style[p["model"]]
+            colour, marker, label = style.get(p["model"]) or (
+                METHOD_COLOURS[p["index"] % len(METHOD_COLOURS)],
+                METHOD_MARKERS[p["index"] % len(METHOD_MARKERS)], p["label"])
             if p["tracking_error"] is None:
                 ax.scatter(p["cost_s_per_s"], BLOWN_UP_ROW, color=colour, marker="x", s=70,
                            zorder=3, label=f"{label}: blew up (cost until then)")
@@ -175,7 +204,7 @@ def _grid(folder: Path) -> dict:
     return json.loads((folder / "manifest.json").read_text())["grid"]
 
 
-def plot_scene(scene: str, row: dict, method: str, method_data: Path, reference: Path,
+def plot_scene(scene: str, row: dict, label: str, method_data: Path, reference: Path,
                path: Path) -> None:
     """The discharged mass over time and the pile at the end (areal mass on the ROM
     grid) of explicit replica 0 and of the method."""
@@ -184,7 +213,7 @@ def plot_scene(scene: str, row: dict, method: str, method_data: Path, reference:
     plt = plotstyle.pyplot()
     runs = [("explicit DEM, replica " + name.rsplit("_r", 1)[1], _outcome(reference, name))
             for name in row["explicit_replicas"]]
-    ours = (f"{method} DEM", _outcome(method_data, row["method_run"]))
+    ours = (label, _outcome(method_data, row["method_run"]))
     fig, axes = plt.subplots(1, 3, figsize=(17, 4.6),
                              gridspec_kw={"width_ratios": [1.0, 1.4, 1.4]})
     for k, (label, run) in enumerate([*runs, ours]):
@@ -223,16 +252,16 @@ def plot_scene(scene: str, row: dict, method: str, method_data: Path, reference:
                f"{row['last_discharge_s']:.0f} s" if row["jammed"] else
                f"delivered {row['discharged_kg'] / 1e3:.0f} t, the explicit DEM "
                f"{row['explicit_discharged_kg'] / 1e3:.0f} t")
-    plotstyle.title(fig, f"{scene}: {method} DEM against the explicit DEM", verdict)
+    plotstyle.title(fig, f"{scene}: {label} against the explicit DEM", verdict)
     fig.tight_layout()
     plotstyle.save(fig, path, dpi=110)
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--method-data", type=Path, required=True,
-                        help="exported held-out design of another DEM method "
-                             "(paper_heldout_nonsmooth)")
+    parser.add_argument("--method-data", type=Path, required=True, action="append",
+                        help="exported design of another DEM method run on the reference's "
+                             "scenes (paper_heldout_nonsmooth); repeat it for several settings")
     parser.add_argument("--reference", type=Path, default=REFERENCE,
                         help="exported explicit held-out design (default: the shipped one)")
     parser.add_argument("--evaluation", type=Path, default=EVALUATION,
@@ -244,36 +273,38 @@ def main(argv=None) -> int:
     from surrogate.rom.method_score import score_dem_method
 
     try:
-        methods = score_dem_method(args.method_data, args.reference, window=args.window)
+        runs = [score_dem_method(folder, args.reference, window=args.window)
+                for folder in args.method_data]
         evaluation = json.loads(args.evaluation.read_text())
     except (ValidationError, OSError) as error:
         print(f"paper_scale_methods: error: {error}", file=sys.stderr)
         return 2
-    result = {"methods": methods, "points": points(evaluation, methods),
+    result = {"methods": runs, "points": points(evaluation, runs),
               "evaluation": str(args.evaluation)}
     args.out.mkdir(parents=True, exist_ok=True)
     jsonio.write(args.out / "paper_scale_methods.json", result, indent=1)
     plot(result, args.out / "paper_scale_methods.png", args.window)
-    for scene, row in methods["scenes"].items():
-        plot_scene(scene, row, methods["method"], args.method_data, args.reference,
-                   args.out / f"scene_{scene}.png")
-    for scene, row in methods["scenes"].items():
-        print(f"{scene}: {methods['method']} DEM tracking error {row['tracking_error']:.3f} "
-              f"({row['tracking_error_spread']['min']:.3f}-"
-              f"{row['tracking_error_spread']['max']:.3f} over "
-              f"{row['tracking_error_spread']['n']} explicit replicas), explicit noise floor "
-              f"{row['tracking_error_dem_noise_floor']:.3f}; CPU s per simulated s: "
-              f"{row['method_cost']['cpu_s_per_simulated_s']:.1f} against the explicit "
-              f"DEM's {methods['explicit_costs'][scene]['cpu_s_per_simulated_s']:.1f}; "
-              f"discharged {row['discharged_kg'] / 1e3:.0f} t against the explicit "
-              f"DEM's {row['explicit_discharged_kg'] / 1e3:.0f} t"
-              + (f" (jammed: nothing left after {row['last_discharge_s']:.0f} s)"
-                 if row["jammed"] else ""))
-    for scene, row in methods["failed"].items():
-        print(f"{scene}: {methods['method']} DEM blew up after {row['after_s']:.1f} s "
-              f"({row['reason']}); picture at the failure: {row['picture']}")
-    for scene, why in methods["skipped"].items():
-        print(f"{scene}: not scored: {why}", file=sys.stderr)
+    for folder, methods in zip(args.method_data, runs):
+        label = label_of(methods)
+        for scene, row in methods["scenes"].items():
+            plot_scene(scene, row, label, folder, args.reference,
+                       args.out / f"scene_{scene}_{slug_of(methods)}.png")
+            print(f"{scene}: {label}: tracking error {row['tracking_error']:.3f} "
+                  f"({row['tracking_error_spread']['min']:.3f}-"
+                  f"{row['tracking_error_spread']['max']:.3f} over "
+                  f"{row['tracking_error_spread']['n']} explicit replicas), explicit noise "
+                  f"floor {row['tracking_error_dem_noise_floor']:.3f}; CPU s per simulated s: "
+                  f"{row['method_cost']['cpu_s_per_simulated_s']:.1f} against the explicit "
+                  f"DEM's {methods['explicit_costs'][scene]['cpu_s_per_simulated_s']:.1f}; "
+                  f"discharged {row['discharged_kg'] / 1e3:.0f} t against the explicit "
+                  f"DEM's {row['explicit_discharged_kg'] / 1e3:.0f} t"
+                  + (f" (jammed: nothing left after {row['last_discharge_s']:.0f} s)"
+                     if row["jammed"] else ""))
+        for scene, row in methods["failed"].items():
+            print(f"{scene}: {label}: blew up after {row['after_s']:.1f} s ({row['reason']}); "
+                  f"picture at the failure: {row['picture']}")
+        for scene, why in methods["skipped"].items():
+            print(f"{scene}: {label}: not scored: {why}", file=sys.stderr)
     print(f"wrote {args.out / 'paper_scale_methods.png'}")
     return 0
 

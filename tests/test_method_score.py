@@ -135,7 +135,7 @@ def test_the_example_charts_both_dem_methods_beside_the_storage_models(tmp_path)
     assert models == ["fifo", "mixing", "rom", "dem_explicit", "dem_nonsmooth"]
     assert all(p["cost_s_per_s"] > 0 for p in result["points"]["heldout_q2000"])
     assert (out / "paper_scale_methods.png").stat().st_size > 10_000
-    assert (out / "scene_heldout_q2000.png").stat().st_size > 10_000
+    assert (out / "scene_heldout_q2000_nonsmooth_11ms_100sweeps.png").stat().st_size > 10_000
     assert example.main(["--method-data", str(tmp_path / "missing"), "--out", str(out)]) == 2
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cosim.errors import ValidationError
 from surrogate.rom import doe
 from surrogate.rom import paper_design as pd
 
@@ -502,3 +503,22 @@ def test_the_rock_scene_is_the_heldout_pile_at_rock_stiffness_for_both_methods()
     assert [r.name for r in nonsmooth.runs] == [rock.runs[0].name]
     assert nonsmooth.runs[0] == rock.runs[0]  # same feeder, seed and tracking ids
     assert all(r.duration == pd.ROCK_DURATION and r.inflow_rate == 0.0 for r in rock.runs)
+
+
+def test_a_design_with_changed_settings_gets_new_keys_and_says_how_to_regenerate(tmp_path):
+    design = pd.get_design("paper_rock_nonsmooth")
+    more = pd.with_settings(design, {"solver_iterations": 200})
+    assert more.config.solver_iterations == 200 and more.changed == (("solver_iterations", 200),)
+    assert pd.with_settings(design, {}) is design
+    assert pd.run_key(more, more.runs[0]) != pd.run_key(design, design.runs[0])
+    assert pd.pile_key(more, more.piles[0]) != pd.pile_key(design, design.piles[0])
+    manifest = pd.export(more, tmp_path / "work", tmp_path / "data")
+    assert manifest["regenerate"].endswith("--set solver_iterations=200")
+    with pytest.raises(ValidationError, match="unknown key"):
+        pd.with_settings(design, {"sweeps": 200})
+    with pytest.raises(ValidationError, match="solver_iterations: must be an integer"):
+        pd.with_settings(design, {"solver_iterations": 0.5})
+    from minetwin.cli import main
+
+    assert main(["rom", "design", "--design", "paper", "--work", str(tmp_path / "w"),
+                 "--set", "friction=0.5"]) == 2  # not into the package's data

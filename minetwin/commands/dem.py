@@ -222,7 +222,7 @@ def run_discharge(args) -> int:
         raise ValidationError("--from", "a directory holding checkpoint.npz or a checkpoint "
                               ".npz file", f"{source} not found")
     _check_positive("--duration", args.duration)
-    changes = _setting_changes(args.changes)
+    changes = setting_changes(args.changes)
     dem = Dem.load_checkpoint(source, changes=changes or None)
     dem.set_discharge_rate(args.rate, outlet=0)
     out = Path(args.out)
@@ -256,7 +256,7 @@ def run_discharge(args) -> int:
                    counter.particle_steps, discharged, balance)
 
 
-def _setting_changes(items: list[str]) -> dict:
+def setting_changes(items: list[str]) -> dict:
     """``--set FIELD=VALUE`` items as DemConfig fields; a value is read as JSON (numbers,
     true/false, lists) and else kept as text (``method=explicit``). Unknown fields
     and bad values are refused by ``DemConfig`` itself, by name."""

@@ -78,6 +78,11 @@ def register(subparsers) -> None:
                              "skipped; --export writes there (default for the paper design: "
                              "the package's surrogate/rom/data/paper_design)")
     executors.add_options(design, workers=2)
+    design.add_argument("--set", dest="changes", action="append", default=[],
+                        metavar="FIELD=VALUE",
+                        help="run the design with this DemConfig field changed, e.g. "
+                             "solver_iterations=200 (repeatable; new keys, so its runs sit "
+                             "beside the named design's; use its own --work and --data)")
     design.add_argument("--plan", action="store_true",
                         help="print the runs, their keys and planned particle-steps; run nothing")
     design.add_argument("--rate", type=float, default=None,
@@ -201,7 +206,13 @@ def run_design(args) -> int:
     from cosim.errors import ValidationError
     from surrogate.rom import paper_design
 
-    design = paper_design.get_design(args.design)
+    from minetwin.commands.dem import setting_changes
+
+    design = paper_design.with_settings(paper_design.get_design(args.design),
+                                        setting_changes(args.changes))
+    if args.changes and not args.data and design.name == "paper":
+        raise ValidationError("--data", "a folder of its own with --set (the package's "
+                              "paper_design data holds the named design's runs)")
     if args.workers is not None and args.workers < 1:
         raise ValidationError("--workers", ">= 1", f"got {args.workers}")
     workers = args.default_workers if args.workers is None else args.workers

@@ -94,6 +94,7 @@ import os
 import shutil
 import sys
 import time
+import dataclasses
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -205,6 +206,9 @@ class Design:
     keep_start_states: bool = False
     """Export the runs' start states even once every run is done (a held-out
     design: the models scored on its runs start from them)."""
+    changed: tuple = ()
+    """``(field, value)`` pairs of DEM settings changed from the named design's
+    (``with_settings``), for its ``regenerate`` command."""
 
     def pile(self, name: str) -> PileSpec:
         return next(p for p in self.piles if p.name == name)
@@ -380,6 +384,17 @@ DESIGNS = {"paper": paper_design, "reduced": reduced_design,
            "paper_heldout": paper_heldout_design, "reduced_heldout": reduced_heldout_design,
            "paper_heldout_nonsmooth": paper_heldout_nonsmooth_design,
            "paper_rock": paper_rock_design, "paper_rock_nonsmooth": paper_rock_nonsmooth_design}
+
+
+def with_settings(design: Design, changes: dict) -> Design:
+    """``design`` with the DEM settings ``changes`` ({DemConfig field: value}),
+    e.g. more solver sweeps for a nonsmooth design: every key changes with them,
+    so its runs are stored beside the named design's, never in their place."""
+    if not changes:
+        return design
+    config = type(design.config).from_dict({**design.config.to_dict(), **changes})
+    merged = {**dict(design.changed), **changes}
+    return dataclasses.replace(design, config=config, changed=tuple(sorted(merged.items())))
 
 
 def get_design(name: str) -> Design:
@@ -1184,7 +1199,9 @@ def export(design: Design, work, data, with_partial: bool = False) -> dict:
                 "bytes": sum(r["result_bytes"] for r in ordered),
                 "dem_cpu_hours": sum(r["cpu_s"] for r in ordered) / 3600.0,
                 "regenerate": f"minetwin rom design --design {design.name} --work DIR "
-                              f"--data {data} --workers 2"}
+                              f"--data {data} --workers 2"
+                              + "".join(f" --set {k}={json.dumps(v)}"
+                                        for k, v in design.changed)}
     manifest["state_bytes"] = _export_states(design, work, data, set(records) | set(unstable),
                                              with_partial)
     _write_json(data / "manifest.json", manifest)
