@@ -114,6 +114,10 @@ def _model_options(parser) -> None:
     parser.add_argument("--flux-floor", type=float, default=None,
                         help="with --target flux: least fill of a full cell the flux is "
                              "divided by (default: cross-validated among 0.25, 0.5, 1)")
+    parser.add_argument("--fill-law", choices=("dem",), default=None,
+                        help="with --target flux: divide the flux by no more than the "
+                             "training DEM's fitted fill of a cell carrying it (default: "
+                             "off; surrogate.rom.model, 'Fitted fill')")
 
 
 def _progress(message: str) -> None:
@@ -124,7 +128,8 @@ def run_train(args) -> int:
     from surrogate.rom.evaluate import train
 
     model = train(args.data, args.out, args.mass_modes, args.velocity_modes, args.ridge,
-                  progress=_progress, target=args.target, flux_floor=args.flux_floor)
+                  progress=_progress, target=args.target, flux_floor=args.flux_floor,
+                  fill_law=args.fill_law)
     print(f"trained on {model.n_samples} samples, grid {model.grid.nx}x{model.grid.ny}, "
           f"modes {model.n_mass_modes}/{model.n_velocity_modes}, ridge {model.ridge:g}; "
           f"wrote {args.out}")
@@ -147,7 +152,7 @@ def run_evaluate(args) -> int:
             build_data(data, quick=True, seed=args.seed, progress=_progress, executor=executor)
         model = train(data, data / "rom_model.npz", args.mass_modes, args.velocity_modes,
                       args.ridge, progress=_progress, target=args.target,
-                      flux_floor=args.flux_floor)
+                      flux_floor=args.flux_floor, fill_law=args.fill_law)
         _progress(f"trained on {model.n_samples} samples; model {data / 'rom_model.npz'}")
     else:
         if not (args.model and args.data):

@@ -324,22 +324,24 @@ MODEL_CANDIDATES = [(modes, velocity_modes, ridge)
 
 
 def _fit(grid, container, samples, keep, modes, velocity_modes, ridge,
-         bases=None, target: str = "velocity", flux_floor: float = FLUX_FLOOR) -> RomModel:
+         bases=None, target: str = "velocity", flux_floor: float = FLUX_FLOOR,
+         fill_law: str | None = None) -> RomModel:
     return RomModel(grid, modes, velocity_modes, ridge, container, target=target,
-                    flux_floor=flux_floor).fit(
+                    flux_floor=flux_floor, fill_law=fill_law).fit(
         samples["mass"][keep], samples["discharge_rate"][keep], samples["inflow_rate"][keep],
         samples["velocity"][keep], bases=bases)
 
 
 def leave_one_run_out_errors(grid, samples, candidates, target: str = "velocity",
-                             container=None, floors=None) -> dict:
+                             container=None, floors=None, fill_law: str | None = None) -> dict:
     """Each candidate ``(modes, velocity modes, ridge)``'s mean velocity-field
     relative error on each training run when the model is fitted on the other
     runs (cross-validation by whole DEM runs). The SVDs of a fold are done once
     for all candidates. With ``target="flux"`` (``container`` needed) the keys are
     ``(modes, velocity modes, ridge, flux_floor)`` over ``floors`` (default
     ``FLUX_FLOORS``), the error that of the model's velocity (its flux over the
-    held run's DEM cell mass, floored) against the DEM's, the same metric."""
+    held run's DEM cell mass, floored) against the DEM's, the same metric;
+    ``fill_law`` as ``RomModel``'s (fitted on the fold's runs)."""
     floors = (FLUX_FLOORS if floors is None else tuple(floors)) if target == "flux" else (None,)
     keys = [c if target == "velocity" else (*c, f) for c in candidates for f in floors]
     errors = {key: [] for key in keys}
@@ -351,7 +353,7 @@ def leave_one_run_out_errors(grid, samples, candidates, target: str = "velocity"
         bases = (pod_basis(samples["mass"][~held]), pod_basis(fitted, centred=False))
         for candidate in candidates:
             model = _fit(grid, container, samples, ~held, *candidate, bases=bases,
-                         target=target)
+                         target=target, fill_law=fill_law)
             for floor in floors:
                 if floor is not None:
                     model.flux_floor = floor
@@ -477,12 +479,13 @@ def rom_numerical_dispersivity(model: RomModel, directory, samples: dict,
 def train(directory, out=None, n_mass_modes: int | None = None,
           n_velocity_modes: int | None = None, ridge: float | None = None,
           progress=None, target: str = "velocity",
-          flux_floor: float | None = None) -> RomModel:
+          flux_floor: float | None = None, fill_law: str | None = None) -> RomModel:
     """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it).
 
     ``target`` (default "velocity"): the field the regression fits (``RomModel``);
     with "flux" the ``flux_floor`` left ``None`` is chosen among ``FLUX_FLOORS``
-    with the other options.
+    with the other options; ``fill_law`` (default None; "dem" with "flux" only):
+    ``RomModel``'s fitted fill, fitted in each fold of the selection too.
 
     Options left ``None`` are chosen among ``MODEL_CANDIDATES`` by the
     smallest leave-one-run-out velocity error (recorded in the model's
@@ -509,7 +512,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     validation = {}
     if len(candidates) * len(floors) > 1 and np.unique(samples["run"]).size > 1:
         scores = leave_one_run_out_errors(grid, samples, candidates, target, container,
-                                          floors if flux else None)
+                                          floors if flux else None, fill_law)
         best = min(scores, key=scores.get)
         validation = {"leave_one_run_out_velocity_rel_error": scores[best],
                       "candidates": {"/".join(f"{x:g}" for x in key): e
@@ -521,7 +524,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         best = (*candidates[0], floors[0]) if flux else candidates[0]
     model = _fit(grid, container, samples, np.ones(samples["run"].size, dtype=bool),
                  *best[:3], target=target,
-                 flux_floor=best[3] if flux else FLUX_FLOOR)
+                 flux_floor=best[3] if flux else FLUX_FLOOR, fill_law=fill_law)
     if np.unique(samples["run"]).size > 1:
         seen = model.ranges["mass_distribution_residual"][1]
         unseen = leave_one_run_out_residual(samples, best[0])
@@ -546,6 +549,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
                    "ridge": ridge}
         if flux:  # a velocity fit's provenance stays as it was
             options.update(target=target, flux_floor=flux_floor)
+        if fill_law is not None:
+            options.update(fill_law=fill_law)
         model.provenance = training_provenance(directory, out, options)
         model.save(out)
     return model

@@ -47,6 +47,25 @@ its error over the thin surface cells and under-resolves the funnel core;
 the flux is what the transport must carry through every row (the diagnosis
 in surrogate/rom/README.md, "What limits the accuracy now").
 
+Fitted fill (``fill_law="dem"``, flux fit only; default None: off). The DEM's
+flowing cells are looser than its settled bulk (over the feeder's opening the
+bottom row holds about 0.7 of a full cell while the feeder draws, 0.9 at rest),
+but the ROM packs every bulk cell at rho_A, so F / M turns the DEM's flux into
+too low a speed there. With the law the flux is divided by the cell's mass, but
+no more than the DEM's fill of a cell carrying that flux:
+V = F / max(min(M, phi(j) M_full), f0 M_full), j = |F| / M_full [m/s] the
+predicted volume flux per full cell, and phi(j) [-] the DEM's mean fill of the
+training samples' covered cells (those whose cell above holds at least
+``COVER_FILL`` of a full cell; a surface cell is partly filled by the free
+surface, not by dilation) in bins of j (edges ``FILL_LAW_BINS``), linear in j
+between the bins' mean j, constant beyond them; fitted separately for the
+feeder's cells (bottom row, centre over the opening) and for the others
+(``fill_law_tables``; the arrays ``fill_law_*`` of the model file). Source of
+the law: a binned regression of the training DEM's own fields (no physical
+law is assumed; the dilatancy of sheared granular matter, Reynolds 1885,
+"On the dilatancy of media composed of rigid particles in contact", Phil.
+Mag. 20, 469-481, is why a flowing cell is looser).
+
 The model file (``save``/``load``) is one ``.npz`` holding the arrays and a
 JSON header with the format version, the grid, the options and the training
 ranges of every input. ``predict`` warns (``OutOfTrainingRange``) naming the
@@ -86,6 +105,76 @@ FLUX_FLOOR = 0.5
 
 FLUX_FLOORS = (0.25, 0.5, 1.0)
 """Fills tried for ``flux_floor`` by ``minetwin rom train --target flux``."""
+
+FILL_LAWS = (None, "dem")
+"""Accepted values of ``RomModel(fill_law=...)`` (module docstring, "Fitted fill")."""
+
+FILL_LAW_BINS = (0.0, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5)
+"""Lower edges [m/s] of the bins of j = |F| / M_full the fill law is fitted in
+(the last bin is open above)."""
+
+COVER_FILL = 0.5
+"""Least fill [-] of the cell above that makes a cell covered (fill law)."""
+
+
+def feeder_cells(grid: Grid, container: Container) -> np.ndarray:
+    """Boolean (ny, nx): the bottom-row cells whose centre lies over the feeder's
+    opening (``outlet_x +- outlet_width / 2``)."""
+    x, _ = grid.centres()
+    cells = np.zeros((grid.ny, grid.nx), dtype=bool)
+    cells[0] = np.abs(x - container.outlet_x) <= 0.5 * container.outlet_width
+    return cells
+
+
+def covered_cells(mass, full_cell_mass: float) -> np.ndarray:
+    """Boolean, the shape of ``mass`` (..., ny, nx) [kg]: the cell above holds at least
+    ``COVER_FILL`` full cells (the top row is never covered)."""
+    mass = np.asarray(mass, dtype=np.float64)
+    covered = np.zeros(mass.shape, dtype=bool)
+    covered[..., :-1, :] = mass[..., 1:, :] >= COVER_FILL * full_cell_mass
+    return covered
+
+
+def fill_law_tables(mass, flux, feeder, full_cell_mass: float) -> dict:
+    """The fill law's arrays from samples: ``mass`` (S, ny, nx) [kg], ``flux``
+    (S, ny, nx, 2) [kg m/s], ``feeder`` (ny, nx) the feeder's cells: for the
+    feeder's covered cells (``fill_law_feeder_j``, ``fill_law_feeder_fill``) and
+    the other covered cells (``fill_law_bulk_*``), each bin of j = |F| / M_full
+    [m/s] (edges ``FILL_LAW_BINS``) holding samples: its mean j and mean fill
+    M / M_full [-] (module docstring). Without covered feeder cells (a point
+    outlet) the feeder's law is the bulk's."""
+    mass = np.asarray(mass, dtype=np.float64)
+    flux = np.asarray(flux, dtype=np.float64).reshape(*mass.shape, 2)
+    fill = mass / full_cell_mass
+    j = np.sqrt(flux[..., 0] ** 2 + flux[..., 1] ** 2) / full_cell_mass
+    covered = covered_cells(mass, full_cell_mass)
+    out = {}
+    for name, cells in (("bulk", ~feeder), ("feeder", feeder)):
+        use = covered & cells[None]
+        jj, ff = j[use], fill[use]
+        if name == "feeder" and jj.size == 0:  # a point outlet: the bulk's law
+            out["fill_law_feeder_j"] = out["fill_law_bulk_j"].copy()
+            out["fill_law_feeder_fill"] = out["fill_law_bulk_fill"].copy()
+            continue
+        if jj.size == 0:
+            raise ValidationError("fill_law", "covered cells in the samples", "none")
+        bins = np.searchsorted(np.asarray(FILL_LAW_BINS), jj, side="right") - 1
+        count = np.bincount(bins, minlength=len(FILL_LAW_BINS))
+        kept = count > 0
+        out[f"fill_law_{name}_j"] = (np.bincount(bins, jj, len(FILL_LAW_BINS))[kept]
+                                     / count[kept])
+        out[f"fill_law_{name}_fill"] = (np.bincount(bins, ff, len(FILL_LAW_BINS))[kept]
+                                        / count[kept])
+    return out
+
+
+def fill_law(arrays: dict, j, feeder) -> np.ndarray:
+    """phi(j) [-] per cell from the tables ``arrays`` (``fill_law_tables``), ``j``
+    (ny, nx) [m/s], ``feeder`` (ny, nx) the feeder's cells."""
+    j = np.asarray(j, dtype=np.float64)
+    bulk = np.interp(j, arrays["fill_law_bulk_j"], arrays["fill_law_bulk_fill"])
+    at_feeder = np.interp(j, arrays["fill_law_feeder_j"], arrays["fill_law_feeder_fill"])
+    return np.where(feeder, at_feeder, bulk)
 
 
 class OutOfTrainingRange(UserWarning):
@@ -150,6 +239,16 @@ class RomModel:
         with the model): the storage's surface-layer DEM uses its contact
         law, particle density and inlet.
 
+    target : {"velocity", "flux"}
+        The fitted field (default "velocity"; module docstring).
+    flux_floor : float
+        With ``target="flux"``: least fill [-] of a full cell the flux is divided
+        by (default ``FLUX_FLOOR`` = 0.5).
+    fill_law : {None, "dem"}
+        With ``target="flux"``: divide the flux by no more than the DEM's fitted
+        fill of a cell carrying it (default None: off; module docstring,
+        "Fitted fill").
+
     ``dispersivity`` [m] (default 0: none) is the bulk's dispersion about the
     mean flow measured on the training DEM (``surrogate.rom.dispersion``);
     ``minetwin rom train`` sets it and the file keeps it, as it keeps the
@@ -160,12 +259,17 @@ class RomModel:
     def __init__(self, grid: Grid, n_mass_modes: int = 12, n_velocity_modes: int = 16,
                  ridge: float = 1e-2, container: Container | None = None,
                  dem_config: dict | None = None, target: str = "velocity",
-                 flux_floor: float = FLUX_FLOOR):
+                 flux_floor: float = FLUX_FLOOR, fill_law: str | None = None):
         if target not in TARGETS:
             raise ValidationError("target", f"one of {TARGETS}", f"got {target!r}")
         if target == "flux" and container is None:
             raise ValidationError("container", "a container (its areal density) for "
                                   "target 'flux'", "got None")
+        if fill_law not in FILL_LAWS:
+            raise ValidationError("fill_law", f"one of {FILL_LAWS}", f"got {fill_law!r}")
+        if fill_law is not None and target != "flux":
+            raise ValidationError("fill_law", "None unless target is 'flux'",
+                                  f"got {fill_law!r} with target {target!r}")
         if not 0 < flux_floor:
             raise ValidationError("flux_floor", "> 0", f"got {flux_floor!r}")
         if n_mass_modes < 1 or n_velocity_modes < 1:
@@ -180,6 +284,7 @@ class RomModel:
         self.dem_config = dem_config
         self.target = target
         self.flux_floor = float(flux_floor)
+        self.fill_law = fill_law
         self.dispersivity = 0.0
         self.arrays: dict[str, np.ndarray] = {}
         self.ranges: dict[str, list[float]] = {}
@@ -208,8 +313,9 @@ class RomModel:
         """
         mass = np.asarray(mass, dtype=np.float64).reshape(len(mass), -1)
         velocity = np.asarray(velocity, dtype=np.float64).reshape(len(velocity), -1)
+        flux_input = None
         if self.target == "flux" and velocity.shape[1] == 2 * mass.shape[1]:
-            velocity = flux_samples(mass, velocity)
+            velocity = flux_input = flux_samples(mass, velocity)
         q_out = np.asarray(discharge_rate, dtype=np.float64)
         q_in = np.asarray(inflow_rate, dtype=np.float64)
         samples = mass.shape[0]
@@ -232,6 +338,14 @@ class RomModel:
         penalty = self.ridge * np.eye(features.shape[1])
         weights = np.linalg.solve(features.T @ features + penalty, features.T @ target)
         self.arrays["weights"] = weights
+        if self.fill_law == "dem":
+            if flux_input is None:
+                raise ValidationError("fill_law", "velocity samples (S, ny, nx, 2) to fit "
+                                      "the fill law on", "got flux samples")
+            self.arrays.update(fill_law_tables(
+                mass.reshape(samples, self.grid.ny, self.grid.nx),
+                flux_input.reshape(samples, self.grid.ny, self.grid.nx, 2),
+                feeder_cells(self.grid, self.container), self.full_cell_mass))
         residual = self._residual(mass, z)
         totals = mass.sum(axis=1)
         self.ranges = {
@@ -314,7 +428,7 @@ class RomModel:
                               float(self._residual(flat, z)[0]))
         if self.target == "velocity":
             return field
-        return field / self._divisor(mass)[..., None]
+        return field / self._divisor(mass, field)[..., None]
 
     def predict_flux(self, mass, discharge_rate: float, inflow_rate: float = 0.0,
                      check: bool = True) -> np.ndarray:
@@ -328,10 +442,27 @@ class RomModel:
             return field
         return field * np.asarray(mass, dtype=np.float64).reshape(self.grid.ny, self.grid.nx, 1)
 
-    def _divisor(self, mass) -> np.ndarray:
-        """max(M, flux_floor M_full) [kg] per cell (ny, nx)."""
+    def _divisor(self, mass, flux=None) -> np.ndarray:
+        """max(M, flux_floor M_full) [kg] per cell (ny, nx); with the fill law,
+        max(min(M, phi(|F| / M_full) M_full), flux_floor M_full) for the fitted
+        flux ``flux`` (ny, nx, 2) [kg m/s] (module docstring)."""
         mass = np.asarray(mass, dtype=np.float64).reshape(self.grid.ny, self.grid.nx)
-        return np.maximum(mass, self.flux_floor * self.full_cell_mass)
+        full = self.full_cell_mass
+        if self.fill_law == "dem":
+            flux = np.asarray(flux, dtype=np.float64).reshape(self.grid.ny, self.grid.nx, 2)
+            j = np.sqrt(flux[..., 0] ** 2 + flux[..., 1] ** 2) / full
+            phi = fill_law(self.arrays, j, feeder_cells(self.grid, self.container))
+            mass = np.minimum(mass, phi * full)
+        return np.maximum(mass, self.flux_floor * full)
+
+    def fitted_fill(self, mass, discharge_rate: float, inflow_rate: float = 0.0) -> np.ndarray:
+        """The fill [-] (ny, nx) the flux is divided by, divisor / M_full: the fill
+        law's min(M / M_full, phi(j)) floored at ``flux_floor`` (without the law:
+        max(M / M_full, flux_floor)); ``target="flux"`` only."""
+        if self.target != "flux":
+            raise ValidationError("target", "'flux' for fitted_fill", f"got {self.target!r}")
+        field, _, _ = self._fitted_field(mass, discharge_rate, inflow_rate)
+        return self._divisor(mass, field) / self.full_cell_mass
 
     def _fitted_field(self, mass, discharge_rate: float, inflow_rate: float) -> tuple:
         """``(field, flat mass, z)``: the regressed field (``target``'s unit),
@@ -351,10 +482,13 @@ class RomModel:
     # ---------------------------------------------------------- persistence
     def header(self) -> dict:
         """The file's JSON header; ``target`` and ``flux_floor`` are written for a flux
-        fit only (a file without them is a velocity fit, as every file before them)."""
+        fit only (a file without them is a velocity fit, as every file before them),
+        ``fill_law`` only when set."""
         header = self._header()
         if self.target != "velocity":
             header.update(target=self.target, flux_floor=self.flux_floor)
+        if self.fill_law is not None:
+            header.update(fill_law=self.fill_law)
         return header
 
     def _header(self) -> dict:
@@ -399,7 +533,7 @@ class RomModel:
                     None if header.get("container") is None
                     else Container.from_dict(header["container"]),
                     header.get("dem_config"), header.get("target", "velocity"),
-                    float(header.get("flux_floor", FLUX_FLOOR)))
+                    float(header.get("flux_floor", FLUX_FLOOR)), header.get("fill_law"))
         model.arrays = arrays
         model.ranges = {k: list(v) for k, v in header["ranges"].items()}
         model.n_samples = int(header["n_samples"])
