@@ -6,7 +6,9 @@ shape with the 2-D point-sink funnel flow towards the outlet,
 outlet), inside the pile.
 """
 
+import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -54,6 +56,21 @@ def synthetic_training(samples=40, seed=1):
         masses.append(field), velocities.append(velocity)
         q_out.append(rate), q_in.append(rng.uniform(0, 300))
     return np.array(masses), np.array(q_out), np.array(q_in), np.array(velocities)
+
+
+def write_design(folder: Path, samples=12, runs=2, container=CONTAINER) -> Path:
+    """``synthetic_training`` as a design folder (``doe.json``, ``train/<run>.npz``),
+    the samples split evenly into ``runs`` runs, as ``minetwin rom train`` reads it."""
+    mass, q_out, q_in, velocity = synthetic_training(samples=samples)
+    (folder / "train").mkdir(parents=True)
+    per = samples // runs
+    for k in range(runs):
+        rows = slice(k * per, (k + 1) * per)
+        np.savez(folder / "train" / f"run{k}.npz", time=np.arange(float(per)), mass=mass[rows],
+                 velocity=velocity[rows], discharge_rate=q_out[rows], inflow_rate=q_in[rows])
+    (folder / "doe.json").write_text(json.dumps({"grid": GRID.to_dict(),
+                                                 "container": container.to_dict()}))
+    return folder
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_rom import CONTAINER, GRID, synthetic_training  # noqa: E402
+from test_rom import CONTAINER, GRID, synthetic_training, write_design  # noqa: E402
 
 from cosim.errors import ValidationError  # noqa: E402
 from surrogate.rom.model import COVER_FILL, FILL_LAW_BINS, RomModel  # noqa: E402
@@ -138,13 +138,7 @@ def test_the_velocity_is_the_flux_over_the_fitted_fill(data):
 def test_the_cli_trains_a_fill_law_model(tmp_path):
     from minetwin.cli import main
 
-    mass, q_out, q_in, velocity = synthetic_training(samples=12)
-    (tmp_path / "train").mkdir()
-    for name, rows in (("a", slice(0, 6)), ("b", slice(6, 12))):
-        np.savez(tmp_path / "train" / f"{name}.npz", time=np.arange(6.0), mass=mass[rows],
-                 velocity=velocity[rows], discharge_rate=q_out[rows], inflow_rate=q_in[rows])
-    (tmp_path / "doe.json").write_text(json.dumps({"grid": GRID.to_dict(),
-                                                   "container": FEEDER.to_dict()}))
+    write_design(tmp_path, container=FEEDER)
     out = tmp_path / "model.npz"
     assert main(["rom", "train", "--data", str(tmp_path), "--out", str(out),
                  "--mass-modes", "4", "--velocity-modes", "4", "--ridge", "1",

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_rom import CONTAINER, GRID, synthetic_training  # noqa: E402
+from test_rom import CONTAINER, GRID, synthetic_training, write_design  # noqa: E402
 
 from cosim.errors import ValidationError  # noqa: E402
 from surrogate.rom.model import RomModel, flux_samples  # noqa: E402
@@ -70,13 +70,7 @@ def test_the_predicted_velocity_carries_the_fitted_flux(data):
 def test_the_cli_trains_a_flux_model(tmp_path):
     from minetwin.cli import main
 
-    mass, q_out, q_in, velocity = synthetic_training(samples=12)
-    (tmp_path / "train").mkdir()
-    for name, rows in (("a", slice(0, 6)), ("b", slice(6, 12))):
-        np.savez(tmp_path / "train" / f"{name}.npz", time=np.arange(6.0), mass=mass[rows],
-                 velocity=velocity[rows], discharge_rate=q_out[rows], inflow_rate=q_in[rows])
-    (tmp_path / "doe.json").write_text(json.dumps({"grid": GRID.to_dict(),
-                                                   "container": CONTAINER.to_dict()}))
+    write_design(tmp_path, container=CONTAINER)
     out = tmp_path / "model.npz"
     assert main(["rom", "train", "--data", str(tmp_path), "--out", str(out),
                  "--mass-modes", "4", "--velocity-modes", "4", "--ridge", "1",

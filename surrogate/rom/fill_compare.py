@@ -31,12 +31,16 @@ Parameters: ``flux`` = (mass modes, flux modes, ridge, flux floor) [-]
 
 from __future__ import annotations
 
+import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
 
+from cosim import jsonio
 from surrogate.rom import doe, metrics
 from surrogate.rom.container import Container
+from surrogate.rom.flux_compare import fit_options, rms
 from surrogate.rom.grid import Grid
 from surrogate.rom.kinematic import LEAST_DISCHARGE
 from surrogate.rom.model import (RomModel, covered_cells, feeder_cells, fill_law,
@@ -44,11 +48,6 @@ from surrogate.rom.model import (RomModel, covered_cells, feeder_cells, fill_law
 
 FUNNEL_ROWS = (2.0, 8.0)
 """Heights [m] above the floor between which cell centres count as the funnel."""
-
-
-def _rms(values) -> float:
-    values = np.asarray(values, dtype=np.float64).ravel()
-    return float(np.sqrt(np.mean(values ** 2))) if values.size else float("nan")
 
 
 def compare(directory, flux=(4, 4, 100.0, 0.5)) -> dict:
@@ -115,9 +114,9 @@ def compare(directory, flux=(4, 4, 100.0, 0.5)) -> dict:
             "funnel_fill": {"dem": in_cells(fill, funnel_used),
                             "law_at_dem_flux": in_cells(law_dem, funnel_used),
                             "law_at_predicted_flux": in_cells(law_predicted, funnel_used)},
-            "covered_fill_rms_error": {"law": _rms((law_dem - fill)[covered]),
-                                       "full_cell": _rms((1.0 - fill)[covered]),
-                                       "training_mean": _rms((mean_fill - fill)[covered])},
+            "covered_fill_rms_error": {"law": rms((law_dem - fill)[covered]),
+                                       "full_cell": rms((1.0 - fill)[covered]),
+                                       "training_mean": rms((mean_fill - fill)[covered])},
             "feeder_speed": {k: in_cells(v, feeder_used) for k, v in speeds.items()},
             "funnel_speed": {k: in_cells(v, funnel_used) for k, v in speeds.items()},
             "field_rel_error": fields}
@@ -144,20 +143,26 @@ def table(report: dict) -> str:
     return "\n".join(lines)
 
 
-if __name__ == "__main__":
-    import argparse
-    import json
-
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description="The flux fit's fitted fill on a training "
                                                  "design, leave one run out "
                                                  "(surrogate.rom.fill_compare)")
     parser.add_argument("--data", required=True, help="design folder (doe.json, train/*.npz)")
     parser.add_argument("--flux", default="4,4,100,0.5",
-                        help="flux fit: mass modes, flux modes, ridge, flux floor")
+                        type=fit_options(4, "mass modes, flux modes, ridge, flux floor"),
+                        help="flux fit: mass modes, flux modes, ridge, flux floor (4,4,100,0.5)")
     parser.add_argument("--json", default=None, help="also write the report here")
-    args = parser.parse_args()
-    f = [float(a) for a in args.flux.split(",")]
-    report = compare(args.data, (int(f[0]), int(f[1]), f[2], f[3]))
+    args = parser.parse_args(argv)
+    if not (Path(args.data) / "doe.json").is_file():
+        print(f"fill_compare: error: --data: must be a design folder with doe.json "
+              f"(got {args.data})", file=sys.stderr)
+        return 2
+    report = compare(args.data, args.flux)
     if args.json:
-        Path(args.json).write_text(json.dumps(report, indent=1))
+        jsonio.write(args.json, report, indent=1)
     print(table(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

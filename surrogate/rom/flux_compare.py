@@ -33,10 +33,13 @@ the selections chose on the paper design (velocity: the shipped model,
 
 from __future__ import annotations
 
+import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
 
+from cosim import jsonio
 from surrogate.rom import doe, metrics
 from surrogate.rom.container import Container
 from surrogate.rom.grid import Grid
@@ -44,7 +47,8 @@ from surrogate.rom.kinematic import AXIS_HALF_WIDTH, BULK_FILL, LEAST_DISCHARGE
 from surrogate.rom.model import RomModel
 
 
-def _rms(values) -> float:
+def rms(values) -> float:
+    """Root mean square of ``values`` (0 for none)."""
     values = np.asarray(values, dtype=np.float64).ravel()
     return float(np.linalg.norm(values) / max(values.size, 1) ** 0.5)
 
@@ -92,8 +96,8 @@ def compare(directory, velocity=(4, 4, 100.0), flux=(4, 4, 100.0, 0.5)) -> dict:
                  "row_flux": {k: [float(f[j]) for j in rows] for k, f in row_flux.items()}}
         for key in models:
             entry[key] = {
-                "axis_speed_rms": _rms(speed[key][rows][:, axis] - speed["dem"][rows][:, axis]),
-                "row_flux_rms": _rms(row_flux[key][rows] - row_flux["dem"][rows]),
+                "axis_speed_rms": rms(speed[key][rows][:, axis] - speed["dem"][rows][:, axis]),
+                "row_flux_rms": rms(row_flux[key][rows] - row_flux["dem"][rows]),
                 "field_rel_error": metrics.velocity_field_rel_error(
                     fields[key], fields["dem"], mass)}
         out[name] = entry
@@ -263,6 +267,11 @@ def closed_loop(directory, models: dict, runs=None, seed: int = 0) -> dict:
     return out
 
 
+def _cell(value, digits: int) -> str:
+    """``value`` for a table, "-" where a run has none (no full rows on the axis)."""
+    return "-" if value is None or value != value else f"{value:.{digits}f}"
+
+
 def table(report: dict) -> str:
     """The comparison as a Markdown table (velocity fit / flux fit per column)."""
     lines = ["| run | q_out [kg/s] | axis speed RMS error [m/s] | upper-core axis speed "
@@ -271,29 +280,43 @@ def table(report: dict) -> str:
              "| --- | --- | --- | --- | --- | --- | --- |"]
     for name, e in report.items():
         up = e["upper_axis_speed"]
-        top = {k: v[-1] if v else float("nan") for k, v in e["row_flux"].items()}
+        top = {k: v[-1] if v else None for k, v in e["row_flux"].items()}
         lines.append(
-            f"| {name} | {e['discharge_rate']:.0f} | {e['velocity']['axis_speed_rms']:.3f} / "
-            f"{e['flux']['axis_speed_rms']:.3f} | {up['dem']:.3f} / {up['velocity']:.3f} / "
-            f"{up['flux']:.3f} | {e['velocity']['row_flux_rms']:.2f} / "
-            f"{e['flux']['row_flux_rms']:.2f} ({e['q_over_rho']:.2f}) | {top['dem']:.2f} / "
-            f"{top['velocity']:.2f} / {top['flux']:.2f} | "
-            f"{e['velocity']['field_rel_error']:.3f} / {e['flux']['field_rel_error']:.3f} |")
+            f"| {name} | {e['discharge_rate']:.0f} | {_cell(e['velocity']['axis_speed_rms'], 3)}"
+            f" / {_cell(e['flux']['axis_speed_rms'], 3)} | {_cell(up['dem'], 3)} / "
+            f"{_cell(up['velocity'], 3)} / {_cell(up['flux'], 3)} | "
+            f"{_cell(e['velocity']['row_flux_rms'], 2)} / {_cell(e['flux']['row_flux_rms'], 2)}"
+            f" ({e['q_over_rho']:.2f}) | {_cell(top['dem'], 2)} / {_cell(top['velocity'], 2)} / "
+            f"{_cell(top['flux'], 2)} | {e['velocity']['field_rel_error']:.3f} / "
+            f"{e['flux']['field_rel_error']:.3f} |")
     return "\n".join(lines)
 
 
-if __name__ == "__main__":
-    import argparse
-    import json
+def fit_options(count: int, names: str):
+    """An argparse type: ``count`` comma-separated numbers (``names``)."""
+    def parse(text: str) -> tuple:
+        try:
+            values = [float(part) for part in text.split(",")]
+        except ValueError:
+            values = []
+        if len(values) != count or not all(v >= 0 for v in values):
+            raise argparse.ArgumentTypeError(f"must be {count} numbers >= 0: {names} "
+                                             f"(got {text!r})")
+        return (int(values[0]), int(values[1]), *values[2:])
+    return parse
 
+
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description="Velocity fit against mass-flux fit on a "
                                                  "training design, leave one run out "
                                                  "(surrogate.rom.flux_compare)")
     parser.add_argument("--data", required=True, help="design folder (doe.json, train/*.npz)")
     parser.add_argument("--velocity", default="4,4,100",
-                        help="velocity fit: mass modes, velocity modes, ridge")
+                        type=fit_options(3, "mass modes, velocity modes, ridge"),
+                        help="velocity fit: mass modes, velocity modes, ridge (4,4,100)")
     parser.add_argument("--flux", default="4,4,100,0.5",
-                        help="flux fit: mass modes, flux modes, ridge, flux floor")
+                        type=fit_options(4, "mass modes, flux modes, ridge, flux floor"),
+                        help="flux fit: mass modes, flux modes, ridge, flux floor (4,4,100,0.5)")
     parser.add_argument("--json", default=None, help="also write the report here")
     parser.add_argument("--ceiling", action="store_true",
                         help="instead: the DEM fields projected onto 4, 8 and 16 POD modes "
@@ -303,19 +326,25 @@ if __name__ == "__main__":
                              "training runs (closed_loop), as JSON")
     parser.add_argument("--runs", default=None,
                         help="with --closed-loop: run names, comma-separated")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    if not (Path(args.data) / "doe.json").is_file():
+        print(f"flux_compare: error: --data: must be a design folder with doe.json "
+              f"(got {args.data})", file=sys.stderr)
+        return 2
     if args.ceiling:
-        print(json.dumps(projection_ceiling(args.data), indent=1))
-        raise SystemExit(0)
+        print(jsonio.dumps(projection_ceiling(args.data), indent=1))
+        return 0
     if args.closed_loop:
         names = dict(item.split("=", 1) for item in args.closed_loop.split(","))
-        print(json.dumps(closed_loop(args.data, names, args.runs.split(",") if args.runs
-                                     else None), indent=1))
-        raise SystemExit(0)
-    v = [float(a) for a in args.velocity.split(",")]
-    f = [float(a) for a in args.flux.split(",")]
-    report = compare(args.data, (int(v[0]), int(v[1]), v[2]),
-                     (int(f[0]), int(f[1]), f[2], f[3]))
+        print(jsonio.dumps(closed_loop(args.data, names, args.runs.split(",") if args.runs
+                                       else None), indent=1))
+        return 0
+    report = compare(args.data, args.velocity, args.flux)
     if args.json:
-        Path(args.json).write_text(json.dumps(report, indent=1))
+        jsonio.write(args.json, report, indent=1)
     print(table(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
