@@ -56,6 +56,11 @@ def register(subparsers) -> None:
                                "velocity_model): the model's regression, the kinematic "
                                "funnel flow or the regression sped up to the kinematic "
                                "downward speed where that is faster (default: regressed)")
+    evaluate.add_argument("--packing-density", type=float, default=None, metavar="KG_M2",
+                          help="areal density [kg/m^2] the ROM packs its bulk at "
+                               "(RomStorage's packing_density; default: the model's "
+                               "container's; the DEM's mean settled density of a design: "
+                               "python -m surrogate.rom.packing --data DIR)")
     _model_options(evaluate)
     evaluate.set_defaults(handler=run_evaluate)
     design = sub.add_parser(
@@ -171,7 +176,8 @@ def run_evaluate(args) -> int:
         summary = evaluate(model, data, progress=_progress,
                            rom_options={"surface": args.surface,
                                         **{k: getattr(args, k)
-                                           for k in ("transport", "packing", "velocity_model")
+                                           for k in ("transport", "packing", "velocity_model",
+                                                     "packing_density")
                                            if getattr(args, k) is not None}},
                            executor=executor)
     # the file scored, so that `fidelity calibrate` ties the ROM card to it

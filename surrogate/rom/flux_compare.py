@@ -173,8 +173,9 @@ def _pile(grid: Grid, cells: np.ndarray, pool: np.ndarray, rng) -> tuple:
     return mass, position
 
 
-def closed_loop(directory, models: dict, runs=None, seed: int = 0) -> dict:
+def closed_loop(directory, models: dict, runs=None, seed: int = 0, options=None) -> dict:
     """``{run: {"dem" | model name: {...}}}``: each ``RomStorage`` (default options,
+or ``options``, a dict of ``RomStorage`` keyword options, for every model;
     the model files ``models`` {name: path}) started from a training run's first
     mass field (particles drawn from the masses the design's DEM runs discharged),
     every run commanded at least ``LEAST_DISCHARGE``, driven at the
@@ -239,7 +240,7 @@ def closed_loop(directory, models: dict, runs=None, seed: int = 0) -> dict:
             store = ParticleStore(capacity=4096)
             ids = store.add(mass=mass, f=doe.FEED_F, grade=np.full(mass.size, 0.01),
                             hardness=np.ones(mass.size), owner=1, time=0.0)
-            storage = RomStorage(model, rng=np.random.default_rng(seed))
+            storage = RomStorage(model, rng=np.random.default_rng(seed), **(options or {}))
             storage.bind(store, 1)
             storage.place(ids, position)
             masses, moved, predicted, first = [], [], [], 0
@@ -326,6 +327,8 @@ def main(argv=None) -> int:
                              "training runs (closed_loop), as JSON")
     parser.add_argument("--runs", default=None,
                         help="with --closed-loop: run names, comma-separated")
+    parser.add_argument("--packing-density", type=float, default=None, metavar="KG_M2",
+                        help="with --closed-loop: RomStorage's packing_density [kg/m^2]")
     args = parser.parse_args(argv)
     if not (Path(args.data) / "doe.json").is_file():
         print(f"flux_compare: error: --data: must be a design folder with doe.json "
@@ -336,8 +339,10 @@ def main(argv=None) -> int:
         return 0
     if args.closed_loop:
         names = dict(item.split("=", 1) for item in args.closed_loop.split(","))
+        options = ({} if args.packing_density is None
+                   else {"packing_density": args.packing_density})
         print(jsonio.dumps(closed_loop(args.data, names, args.runs.split(",") if args.runs
-                                       else None), indent=1))
+                                       else None, options=options), indent=1))
         return 0
     report = compare(args.data, args.velocity, args.flux)
     if args.json:

@@ -136,12 +136,28 @@ diffusion_length : float
     ``surrogate.rom.kinematic.DIFFUSION_LENGTH`` = 1.06 m, fitted on the
     paper-scale training design); used with ``velocity_model="kinematic"`` or
     ``"hybrid"``.
+packing_density : float, optional
+    Areal density [kg/m^2] the ROM packs its bulk at (default None: the model
+    container's ``areal_density``, the 90th percentile of the base pile's cell
+    masses, ``doe.areal_density``). Given, the storage runs in a copy of the
+    container with this density, so everything that uses the bulk density uses
+    it: the column packing and avalanches (``surface.settle``), the surface
+    heights and deposits (``surface.surface_heights``, ``deposit``), the packing
+    columns' width (``surface.column_width``), the projection's bulk cells
+    (``fill`` times a full cell) and its feeder outflow q_out / rho_A
+    (``transport.project``), the kinematic field's flux and
+    ``bulk_areal_density``. The model's regression keeps its own container
+    (``RomModel.full_cell_mass``, part of the fit). The DEM's mean settled
+    density on a training design: ``surrogate.rom.packing.settled_density``
+    (paper design: 564.2 kg/m^2, 0.908 of 621.1; surrogate/rom/README.md,
+    "Packing at the DEM's mean settled density").
 """
 
 from __future__ import annotations
 
 import warnings
 from collections import deque
+from dataclasses import replace
 from pathlib import Path
 
 import numba
@@ -248,8 +264,11 @@ class RomStorage(StorageModel):
                  surface_config=None, surface_dt_safety_factor: float | None = None,
                  transport: str = "balanced", packing: str = "avalanche", fill: float = FILL,
                  relax: float = 1.0, velocity_model: str = "regressed",
-                 diffusion_length: float = DIFFUSION_LENGTH):
+                 diffusion_length: float = DIFFUSION_LENGTH,
+                 packing_density: float | None = None):
         super().__init__(rng=rng)
+        self.packing_density = (None if packing_density is None else float(check_finite_range(
+            "packing_density", packing_density, 0.0, low_open=True, unit="kg/m^2")))
         if velocity_model not in VELOCITY_MODELS:
             raise ValidationError("velocity_model", f"one of {VELOCITY_MODELS}",
                                   f"got {velocity_model!r}")
@@ -316,10 +335,11 @@ class RomStorage(StorageModel):
         if model.container is None or not model.trained:
             raise ValidationError("model", "a trained ROM with its container geometry")
         self.model = model
-        self.container = model.container
+        self.container = (model.container if self.packing_density is None else
+                          replace(model.container, areal_density=self.packing_density))
         if self.surface == "dem":
             self.surface_dem = SurfaceDem(_dem_config(self.surface_config or model.dem_config),
-                                          model.container, self.surface_dt_safety_factor,
+                                          self.container, self.surface_dt_safety_factor,
                                           rng=self.rng)
         return self
 
