@@ -397,6 +397,16 @@ def load_samples(directory) -> dict:
     return samples
 
 
+def training_runs(directory) -> tuple[Grid, Container, dict, list[str]]:
+    """``(grid, container, samples, run names)`` of a design folder: ``read_meta``'s grid
+    and container, ``load_samples``, and each run's name (``samples["run"]`` k is
+    the k-th name)."""
+    meta = read_meta(directory)
+    names = [f.stem for f in sorted(Path(directory, "train").glob("*.npz"))]
+    return (Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"]),
+            load_samples(directory), names)
+
+
 def write_meta(directory: Path, cfg, grid: Grid, container: Container, extra: dict) -> None:
     meta = {"dem_config": cfg.to_dict(), "grid": grid.to_dict(),
             "container": container.to_dict(), **extra}

@@ -31,17 +31,13 @@ Parameters: ``flux`` = (mass modes, flux modes, ridge, flux floor) [-]
 
 from __future__ import annotations
 
-import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 
 from cosim import jsonio
 from surrogate.rom import doe, metrics
-from surrogate.rom.container import Container
-from surrogate.rom.flux_compare import fit_options, rms
-from surrogate.rom.grid import Grid
+from surrogate.rom.flux_compare import design_missing, design_parser, rms
 from surrogate.rom.kinematic import LEAST_DISCHARGE
 from surrogate.rom.model import (RomModel, covered_cells, feeder_cells, fill_law,
                                  fill_law_tables, flux_samples)
@@ -53,10 +49,7 @@ FUNNEL_ROWS = (2.0, 8.0)
 def compare(directory, flux=(4, 4, 100.0, 0.5)) -> dict:
     """``{run name: {...}}``: the module docstring's quantities, each model and
     law fitted without the run."""
-    meta = doe.read_meta(directory)
-    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
-    samples = doe.load_samples(directory)
-    names = [f.stem for f in sorted(Path(directory, "train").glob("*.npz"))]
+    grid, container, samples, names = doe.training_runs(directory)
     x, y = grid.centres()
     full = container.areal_density * grid.dx * grid.dy
     feeder = feeder_cells(grid, container)
@@ -144,18 +137,10 @@ def table(report: dict) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description="The flux fit's fitted fill on a training "
-                                                 "design, leave one run out "
-                                                 "(surrogate.rom.fill_compare)")
-    parser.add_argument("--data", required=True, help="design folder (doe.json, train/*.npz)")
-    parser.add_argument("--flux", default="4,4,100,0.5",
-                        type=fit_options(4, "mass modes, flux modes, ridge, flux floor"),
-                        help="flux fit: mass modes, flux modes, ridge, flux floor (4,4,100,0.5)")
-    parser.add_argument("--json", default=None, help="also write the report here")
+    parser = design_parser("The flux fit's fitted fill on a training design, leave one run "
+                           "out (surrogate.rom.fill_compare)")
     args = parser.parse_args(argv)
-    if not (Path(args.data) / "doe.json").is_file():
-        print(f"fill_compare: error: --data: must be a design folder with doe.json "
-              f"(got {args.data})", file=sys.stderr)
+    if design_missing(args, "fill_compare"):
         return 2
     report = compare(args.data, args.flux)
     if args.json:

@@ -56,10 +56,7 @@ def rms(values) -> float:
 def compare(directory, velocity=(4, 4, 100.0), flux=(4, 4, 100.0, 0.5)) -> dict:
     """``{run name: {...}}``: the module docstring's quantities for the DEM, the
     velocity fit and the flux fit, each fitted without the run."""
-    meta = doe.read_meta(directory)
-    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
-    samples = doe.load_samples(directory)
-    names = [f.stem for f in sorted(Path(directory, "train").glob("*.npz"))]
+    grid, container, samples, names = doe.training_runs(directory)
     x, y = grid.centres()
     axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
     full = container.areal_density * grid.dx * grid.dy
@@ -113,10 +110,7 @@ def projection_ceiling(directory, modes=(4, 8, 16), flux_floor: float = 0.5) -> 
     cells as ``compare``)."""
     from surrogate.rom.model import flux_samples, pod_basis
 
-    meta = doe.read_meta(directory)
-    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
-    samples = doe.load_samples(directory)
-    names = [f.stem for f in sorted(Path(directory, "train").glob("*.npz"))]
+    grid, container, samples, names = doe.training_runs(directory)
     x, _ = grid.centres()
     axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
     full = container.areal_density * grid.dx * grid.dy
@@ -307,18 +301,32 @@ def fit_options(count: int, names: str):
     return parse
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description="Velocity fit against mass-flux fit on a "
-                                                 "training design, leave one run out "
-                                                 "(surrogate.rom.flux_compare)")
+def design_parser(description: str) -> argparse.ArgumentParser:
+    """The diagnostics' common options: ``--data``, ``--flux``, ``--json``."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--data", required=True, help="design folder (doe.json, train/*.npz)")
-    parser.add_argument("--velocity", default="4,4,100",
-                        type=fit_options(3, "mass modes, velocity modes, ridge"),
-                        help="velocity fit: mass modes, velocity modes, ridge (4,4,100)")
     parser.add_argument("--flux", default="4,4,100,0.5",
                         type=fit_options(4, "mass modes, flux modes, ridge, flux floor"),
                         help="flux fit: mass modes, flux modes, ridge, flux floor (4,4,100,0.5)")
     parser.add_argument("--json", default=None, help="also write the report here")
+    return parser
+
+
+def design_missing(args, prog: str) -> bool:
+    """Whether ``--data`` is not a design folder (said on stderr)."""
+    if (Path(args.data) / "doe.json").is_file():
+        return False
+    print(f"{prog}: error: --data: must be a design folder with doe.json (got {args.data})",
+          file=sys.stderr)
+    return True
+
+
+def main(argv=None) -> int:
+    parser = design_parser("Velocity fit against mass-flux fit on a training design, leave "
+                           "one run out (surrogate.rom.flux_compare)")
+    parser.add_argument("--velocity", default="4,4,100",
+                        type=fit_options(3, "mass modes, velocity modes, ridge"),
+                        help="velocity fit: mass modes, velocity modes, ridge (4,4,100)")
     parser.add_argument("--ceiling", action="store_true",
                         help="instead: the DEM fields projected onto 4, 8 and 16 POD modes "
                              "of the other runs (projection_ceiling), as JSON")
@@ -330,9 +338,7 @@ def main(argv=None) -> int:
     parser.add_argument("--packing-density", type=float, default=None, metavar="KG_M2",
                         help="with --closed-loop: RomStorage's packing_density [kg/m^2]")
     args = parser.parse_args(argv)
-    if not (Path(args.data) / "doe.json").is_file():
-        print(f"flux_compare: error: --data: must be a design folder with doe.json "
-              f"(got {args.data})", file=sys.stderr)
+    if design_missing(args, "flux_compare"):
         return 2
     if args.ceiling:
         print(jsonio.dumps(projection_ceiling(args.data), indent=1))

@@ -165,16 +165,9 @@ def compare_on_design(directory, model=None, diffusion_length: float = DIFFUSION
     90 % of its samples; ``rel_error`` the norm of its difference over those cells
     relative to the DEM's, and ``axis`` its mean over the cells within
     ``AXIS_HALF_WIDTH`` of the outlet per height [m] (rows the core fills)."""
-    from pathlib import Path
-
     from surrogate.rom import doe
-    from surrogate.rom.container import Container
-    from surrogate.rom.grid import Grid
 
-    meta = doe.read_meta(directory)
-    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
-    samples = doe.load_samples(directory)
-    names = [f.stem for f in sorted(Path(directory, "train").glob("*.npz"))]
+    grid, container, samples, names = doe.training_runs(directory)
     x, y = grid.centres()
     axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
     whole = velocity_field(grid, container, 1.0, diffusion_length)
