@@ -63,6 +63,10 @@ class Container:
             raise ValidationError("container.repose_angle", "in (0, 1.5) rad",
                                   f"got {self.repose_angle}")
 
+    def full_cell_mass(self, grid) -> float:
+        """Mass [kg] of a full cell of ``grid``: areal_density dx dy."""
+        return self.areal_density * grid.dx * grid.dy
+
     def to_dict(self) -> dict:
         return asdict(self)
 

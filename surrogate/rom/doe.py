@@ -397,14 +397,19 @@ def load_samples(directory) -> dict:
     return samples
 
 
-def training_runs(directory) -> tuple[Grid, Container, dict, list[str]]:
-    """``(grid, container, samples, run names)`` of a design folder: ``read_meta``'s grid
-    and container, ``load_samples``, and each run's name (``samples["run"]`` k is
-    the k-th name)."""
+def grid_and_container(directory) -> tuple[Grid, Container]:
+    """The grid and the container of a design folder (``read_meta``)."""
     meta = read_meta(directory)
+    return Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
+
+
+def training_runs(directory) -> tuple[Grid, Container, dict, list[str]]:
+    """``(grid, container, samples, run names)`` of a design folder:
+    ``grid_and_container``, ``load_samples``, and each run's name
+    (``samples["run"]`` k is the k-th name)."""
+    grid, container = grid_and_container(directory)
     names = [f.stem for f in sorted(Path(directory, "train").glob("*.npz"))]
-    return (Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"]),
-            load_samples(directory), names)
+    return grid, container, load_samples(directory), names
 
 
 def write_meta(directory: Path, cfg, grid: Grid, container: Container, extra: dict) -> None:

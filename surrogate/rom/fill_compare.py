@@ -51,7 +51,7 @@ def compare(directory, flux=(4, 4, 100.0, 0.5)) -> dict:
     law fitted without the run."""
     grid, container, samples, names = doe.training_runs(directory)
     x, y = grid.centres()
-    full = container.areal_density * grid.dx * grid.dy
+    full = container.full_cell_mass(grid)
     feeder = feeder_cells(grid, container)
     opening = feeder[0]
     funnel = np.zeros_like(feeder)

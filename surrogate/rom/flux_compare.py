@@ -41,7 +41,6 @@ import numpy as np
 
 from cosim import jsonio
 from surrogate.rom import doe, metrics
-from surrogate.rom.container import Container
 from surrogate.rom.grid import Grid
 from surrogate.rom.kinematic import AXIS_HALF_WIDTH, BULK_FILL, LEAST_DISCHARGE
 from surrogate.rom.model import RomModel
@@ -53,13 +52,28 @@ def rms(values) -> float:
     return float(np.linalg.norm(values) / max(values.size, 1) ** 0.5)
 
 
+def _funnel_design(directory) -> tuple:
+    """``(grid, container, samples, run names, axis, full)`` of a design folder:
+    ``doe.training_runs``, the columns within ``AXIS_HALF_WIDTH`` of the outlet
+    (nx,) and the mass of a full cell [kg]."""
+    grid, container, samples, names = doe.training_runs(directory)
+    x, _ = grid.centres()
+    axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
+    return grid, container, samples, names, axis, container.full_cell_mass(grid)
+
+
+def _core_rows(mass: np.ndarray, full: float, axis: np.ndarray) -> list[int]:
+    """Rows whose axis cells are at least ``BULK_FILL`` full in 90 % of the samples
+    ``mass`` (S, ny, nx) [kg] (``kinematic.compare_on_design``'s rule)."""
+    kept = (mass >= BULK_FILL * full).mean(0) >= 0.9
+    return [j for j in range(mass.shape[1]) if kept[j, axis].all()]
+
+
 def compare(directory, velocity=(4, 4, 100.0), flux=(4, 4, 100.0, 0.5)) -> dict:
     """``{run name: {...}}``: the module docstring's quantities for the DEM, the
     velocity fit and the flux fit, each fitted without the run."""
-    grid, container, samples, names = doe.training_runs(directory)
-    x, y = grid.centres()
-    axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
-    full = container.areal_density * grid.dx * grid.dy
+    grid, container, samples, names, axis, full = _funnel_design(directory)
+    _, y = grid.centres()
     out = {}
     for number, name in enumerate(names):
         held = samples["run"] == number
@@ -79,8 +93,7 @@ def compare(directory, velocity=(4, 4, 100.0), flux=(4, 4, 100.0, 0.5)) -> dict:
         for key, model in models.items():
             fields[key] = np.array([model.predict(m, q, i, check=False) for m, q, i in
                                     zip(mass, rates, samples["inflow_rate"][used])])
-        kept = (mass >= BULK_FILL * full).mean(0) >= 0.9
-        rows = [j for j in range(grid.ny) if kept[j, axis].all()]
+        rows = _core_rows(mass, full, axis)
         upper = rows[len(rows) // 2:]
         speed = {k: -f[..., 1].mean(0) for k, f in fields.items()}
         row_flux = {k: (-(mass / full) * f[..., 1]).mean(0).sum(1) * grid.dx
@@ -110,10 +123,7 @@ def projection_ceiling(directory, modes=(4, 8, 16), flux_floor: float = 0.5) -> 
     cells as ``compare``)."""
     from surrogate.rom.model import flux_samples, pod_basis
 
-    grid, container, samples, names = doe.training_runs(directory)
-    x, _ = grid.centres()
-    axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
-    full = container.areal_density * grid.dx * grid.dy
+    grid, container, samples, names, axis, full = _funnel_design(directory)
     shape = (-1, grid.ny, grid.nx, 2)
     out = {}
     for number, name in enumerate(names):
@@ -122,8 +132,7 @@ def projection_ceiling(directory, modes=(4, 8, 16), flux_floor: float = 0.5) -> 
         if not used.any():
             continue
         mass = samples["mass"][used].astype(np.float64)
-        kept = (mass >= BULK_FILL * full).mean(0) >= 0.9
-        rows = [j for j in range(grid.ny) if kept[j, axis].all()]
+        rows = _core_rows(mass, full, axis)
         upper = rows[len(rows) // 2:]
 
         def summary(field):
@@ -185,13 +194,9 @@ or ``options``, a dict of ``RomStorage`` keyword options, for every model;
     from cosim.particles import ParticleStore
     from surrogate.rom.storage import RomStorage
 
-    meta = doe.read_meta(directory)
-    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
-    samples = doe.load_samples(directory)
-    files = sorted(Path(directory, "train").glob("*.npz"))
+    grid, container, samples, names, axis, full = _funnel_design(directory)
     x, _ = grid.centres()
-    axis = np.abs(x - container.outlet_x) <= AXIS_HALF_WIDTH
-    full = container.areal_density * grid.dx * grid.dy
+    files = [Path(directory, "train", f"{name}.npz") for name in names]
     pools, setpoints = [], []
     for path in files:
         with np.load(path) as data:
@@ -205,8 +210,7 @@ or ``options``, a dict of ``RomStorage`` keyword options, for every model;
             continue
         rows_used = np.flatnonzero(samples["run"] == number)
         mass_dem = samples["mass"][rows_used].astype(np.float64)
-        kept = (mass_dem >= BULK_FILL * full).mean(0) >= 0.9
-        rows = [j for j in range(grid.ny) if kept[j, axis].all()]
+        rows = _core_rows(mass_dem, full, axis)
         upper = rows[len(rows) // 2:]
         inflow = float(samples["inflow_rate"][rows_used].mean())
         opening = np.abs(x - container.outlet_x) <= 0.5 * container.outlet_width

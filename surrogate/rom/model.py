@@ -415,7 +415,7 @@ class RomModel:
         """Mass [kg] of a full cell, rho_A dx dy (``nan`` without a container)."""
         if self.container is None:
             return float("nan")
-        return self.container.areal_density * self.grid.dx * self.grid.dy
+        return self.container.full_cell_mass(self.grid)
 
     def predict(self, mass, discharge_rate: float, inflow_rate: float = 0.0,
                 check: bool = True) -> np.ndarray:

@@ -27,11 +27,11 @@ Run: ``python -m surrogate.rom.packing --data surrogate/rom/data/paper_design``.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
+from cosim import jsonio
 from surrogate.rom import doe
 from surrogate.rom.container import Container
 from surrogate.rom.grid import Grid
@@ -45,7 +45,7 @@ def settled_cells(mass: np.ndarray, grid: Grid, container: Container) -> np.ndar
     """Mask (S, ny, nx) of the settled bulk cells of mass fields ``mass`` (S, ny, nx)
     [kg] (module docstring)."""
     mass = np.asarray(mass, dtype=np.float64)
-    full = container.areal_density * grid.dx * grid.dy
+    full = container.full_cell_mass(grid)
     covered = np.zeros(mass.shape, dtype=bool)
     covered[:, :-1] = mass[:, 1:] >= ABOVE_FILL * full
     return covered & (mass > 0) & ~feeder_cells(grid, container)[None]
@@ -57,8 +57,7 @@ def settled_density(directory) -> dict:
     ``fraction`` of the container's ``areal_density`` [-], their spread over runs
     (``min``, ``max``, ``std``), ``pooled`` (all cells of all runs),
     ``per_run`` {run: [density, cells]}, ``container_density`` [kg/m^2]."""
-    meta = doe.read_meta(directory)
-    grid, container = Grid.from_dict(meta["grid"]), Container.from_dict(meta["container"])
+    grid, container = doe.grid_and_container(directory)
     area = grid.dx * grid.dy
     per_run, total_mass, total_cells = {}, 0.0, 0
     for path in sorted(Path(directory, "train").glob("*.npz")):
@@ -94,7 +93,7 @@ def main(argv=None) -> int:
           f"{result['min']:.2f}-{result['max']:.2f}, sd {result['std']:.2f}; pooled "
           f"{result['pooled']:.2f})")
     if args.out:
-        Path(args.out).write_text(json.dumps(result, indent=1))
+        jsonio.write(args.out, result, indent=1)
     return 0
 
 
