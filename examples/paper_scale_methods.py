@@ -58,6 +58,7 @@ import numpy as np
 
 from cosim import jsonio
 from cosim.errors import ValidationError
+from surrogate.rom.metrics import WINDOW_S
 
 ROOT = Path(__file__).resolve().parents[1]
 EVALUATION = ROOT / "surrogate" / "rom" / "data" / "fidelity" / "paper_heldout_evaluation.json"
@@ -283,7 +284,7 @@ def main(argv=None) -> int:
                         help="exported explicit held-out design (default: the shipped one)")
     parser.add_argument("--evaluation", type=Path, default=EVALUATION,
                         help="`minetwin rom evaluate` summary of the shipped ROM on it")
-    parser.add_argument("--window", type=float, default=30.0,
+    parser.add_argument("--window", type=float, default=WINDOW_S,
                         help="tracking-error window [s] (default 30; 5 for the 20 s rock scene)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)

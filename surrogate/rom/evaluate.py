@@ -276,7 +276,7 @@ def _spread(values: list[float]) -> dict:
 
 
 def ensemble_score(outflow: dict, references: list[dict], t0: float, t1: float,
-                   window: float = 30.0) -> dict:
+                   window: float = metrics.WINDOW_S) -> dict:
     """``score`` against each DEM replica: the mean of each error, and the tracking
     error's spread (mean, min, max, std, n)."""
     scores = [score(outflow, reference, t0, t1, window) for reference in references]
@@ -286,7 +286,7 @@ def ensemble_score(outflow: dict, references: list[dict], t0: float, t1: float,
     return out
 
 
-def noise_floor(references: list[dict], t0: float, t1: float, window: float = 30.0) -> dict:
+def noise_floor(references: list[dict], t0: float, t1: float, window: float = metrics.WINDOW_S) -> dict:
     """The errors between the DEM replicas, every pair once (``ensemble_score``'s keys)."""
     if len(references) < 2:
         from cosim.errors import ValidationError
@@ -612,7 +612,7 @@ def run_storage(name: str, heldout: Path, model: RomModel | None = None, seed: i
     return {k: np.concatenate(v) for k, v in outflow.items()}, wall, storage
 
 
-def score(outflow: dict, reference: dict, t0: float, t1: float, window: float = 30.0) -> dict:
+def score(outflow: dict, reference: dict, t0: float, t1: float, window: float = metrics.WINDOW_S) -> dict:
     """Tracking error and outflow grade/hardness errors against ``reference`` in
     ``window`` [s] windows."""
     return {"tracking_error": metrics.tracking_error(outflow, reference, t0, t1, window),
@@ -789,7 +789,7 @@ def evaluate(model: RomModel, directory, progress=None, rom_options=None,
         result["targets"] = _targets(result)
         scenarios[meta["name"]] = result
     runs = list(scenarios.values())
-    summary = {"aggregate": AGGREGATE_NOTE, "window_s": 30.0,
+    summary = {"aggregate": AGGREGATE_NOTE, "window_s": metrics.WINDOW_S,
                "heldout": [s["scenario"] for s in runs]}
     for key in ("tracking_error", "tracking_error_dem_noise_floor", "grade_error",
                 "hardness_error", "feed_prediction_error", "velocity_field_rel_error",

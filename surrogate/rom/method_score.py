@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from cosim.errors import ValidationError
+from surrogate.rom import metrics
 from surrogate.rom.evaluate import OUTFLOW_KEYS, ensemble_score, noise_floor
 from surrogate.rom.heldout_layout import finished_scenes, scene_of
 
@@ -39,10 +40,6 @@ from surrogate.rom.heldout_layout import finished_scenes, scene_of
 JAM_DELIVERED_SHARE = 0.9
 """Share [-] of the explicit replicas' mean discharged mass under which a method's
 run is ``jammed`` (module docstring)."""
-
-WINDOW_S = 30.0
-"""Default window [s] of the tracking error (``surrogate.rom.evaluate``'s)."""
-
 
 def _done_runs(data: Path) -> dict:
     """Finished runs of an exported design by scene (the name without ``_r<k>``)."""
@@ -77,7 +74,7 @@ def _cost(records: list) -> dict:
             "dt_s": float(records[0]["dt_s"]), "particles": int(records[0]["particles_start"])}
 
 
-def score_dem_method(method_data, reference_data, window: float = WINDOW_S) -> dict:
+def score_dem_method(method_data, reference_data, window: float = metrics.WINDOW_S) -> dict:
     """Score the finished runs of ``method_data`` (an exported held-out design of
     another DEM method) against the explicit replicas in ``reference_data``, in
     ``window`` [s] windows (default 30 s; a shorter scene needs shorter ones).

@@ -25,8 +25,12 @@ from __future__ import annotations
 
 import numpy as np
 
+WINDOW_S = 30.0
+"""Default window [s] of the outflow compositions and signals (the paper's 30 s
+funnel-zone horizon)."""
 
-def window_compositions(outflow: dict, t_start: float, t_end: float, window: float = 30.0):
+
+def window_compositions(outflow: dict, t_start: float, t_end: float, window: float = WINDOW_S):
     """Mass per (window, tracking id): ``(matrix (W, K), tracking ids (K,))``."""
     edges = np.arange(t_start, t_end + 1e-9, window)
     if edges.size < 2:
@@ -41,7 +45,7 @@ def window_compositions(outflow: dict, t_start: float, t_end: float, window: flo
 
 
 def tracking_error(model: dict, reference: dict, t_start: float, t_end: float,
-                   window: float = 30.0) -> float:
+                   window: float = WINDOW_S) -> float:
     """Mean total-variation distance of the per-window outflow compositions."""
     a, ids_a = window_compositions(model, t_start, t_end, window)
     b, ids_b = window_compositions(reference, t_start, t_end, window)
@@ -70,7 +74,7 @@ def velocity_field_rel_error(predicted, reference, reference_mass) -> float:
 
 
 def moving_average_signal(outflow: dict, attribute: str, t_start: float, t_end: float,
-                          window: float = 30.0, bin_s: float = 1.0) -> np.ndarray:
+                          window: float = WINDOW_S, bin_s: float = 1.0) -> np.ndarray:
     """Moving average (``window`` s) of the outflow's mass-weighted ``attribute``
     per ``bin_s`` bin; NaN where no mass left within the window."""
     edges = np.arange(t_start, t_end + 1e-9, bin_s)
@@ -88,7 +92,7 @@ def moving_average_signal(outflow: dict, attribute: str, t_start: float, t_end: 
 
 
 def outflow_signal_error(model: dict, reference: dict, attribute: str, t_start: float,
-                         t_end: float, window: float = 30.0) -> float:
+                         t_end: float, window: float = WINDOW_S) -> float:
     """Mean absolute difference of the two runs' moving-average outflow ``attribute``."""
     a = moving_average_signal(model, attribute, t_start, t_end, window)
     b = moving_average_signal(reference, attribute, t_start, t_end, window)
