@@ -300,6 +300,10 @@ HELDOUT_SCENES = (("heldout_q1200", 1200.0, 1200.0), ("heldout_q2000", 2000.0, 2
 """The held-out scenes ``(name, discharge [kg/s], inflow [kg/s])``."""
 
 
+HELDOUT_PILE = PileSpec("heldout_1500t", 17_500, seed=2)
+"""The held-out scenes' laid-out pile (about 1.5 kt), for every method and stiffness."""
+
+
 def paper_heldout_design() -> Design:
     """Held-out paper-scale scenes for scoring the ROM (issue 15): a laid-out
     pile of 17,500 disks (about 1.5 kt, the integration test's pre-filled
@@ -308,9 +312,9 @@ def paper_heldout_design() -> Design:
     1.5 t/s with 0.7 t/s in (a rate pair not in the design), each as
     ``HELDOUT_REPLICAS`` DEM replicas."""
     cfg = paper_config()
-    piles = (PileSpec("heldout_1500t", 17_500, seed=2),)
+    piles = (HELDOUT_PILE,)
     return Design("paper_heldout", cfg, paper_grid(cfg), piles,
-                  _heldout_runs("pile:heldout_1500t", HELDOUT_SCENES, 180.0, first_seed=100),
+                  _heldout_runs(f"pile:{HELDOUT_PILE.name}", HELDOUT_SCENES, 180.0, first_seed=100),
                   checkpoint_interval=20.0, keep_start_states=True)
 
 
@@ -323,9 +327,9 @@ def paper_heldout_nonsmooth_design() -> Design:
     the explicit design's (same disks and seed) and settled by the nonsmooth
     method."""
     cfg = paper_config(method="nonsmooth")
-    piles = (PileSpec("heldout_1500t", 17_500, seed=2),)
+    piles = (HELDOUT_PILE,)
     return Design("paper_heldout_nonsmooth", cfg, paper_grid(cfg), piles,
-                  _heldout_runs("pile:heldout_1500t", HELDOUT_SCENES, 180.0, first_seed=100,
+                  _heldout_runs(f"pile:{HELDOUT_PILE.name}", HELDOUT_SCENES, 180.0, first_seed=100,
                                 replicas=1),
                   checkpoint_interval=20.0)
 
@@ -344,30 +348,30 @@ ROCK_DURATION = 20.0
 16 times shorter, so a 180 s replica would cost about 10 CPU hours."""
 
 
+def _rock_design(name: str, replicas: int, **settings) -> Design:
+    """The held-out pile at ``ROCK_STIFFNESS`` drained by ``ROCK_SCENES`` for
+    ``ROCK_DURATION`` s, ``replicas`` runs, with the DEM ``settings``."""
+    cfg = paper_config(normal_stiffness=ROCK_STIFFNESS, **settings)
+    return Design(name, cfg, paper_grid(cfg), (HELDOUT_PILE,),
+                  _heldout_runs(f"pile:{HELDOUT_PILE.name}", ROCK_SCENES, ROCK_DURATION,
+                                first_seed=200, replicas=replicas),
+                  checkpoint_interval=10.0)
+
+
 def paper_rock_design() -> Design:
     """The held-out 1.5 kt pile (17,500 disks) at the rock stiffness
     ``ROCK_STIFFNESS``, drained at the paper's 2 t/s for ``ROCK_DURATION`` s by the
     explicit DEM at ``STEP_FRACTION`` of its contact time, ``HELDOUT_REPLICAS``
     replicas: the reference and noise floor the nonsmooth method is scored
     against where the explicit step collapses (issue 22)."""
-    cfg = paper_config(normal_stiffness=ROCK_STIFFNESS)
-    piles = (PileSpec("heldout_1500t", 17_500, seed=2),)
-    return Design("paper_rock", cfg, paper_grid(cfg), piles,
-                  _heldout_runs("pile:heldout_1500t", ROCK_SCENES, ROCK_DURATION,
-                                first_seed=200),
-                  checkpoint_interval=10.0)
+    return _rock_design("paper_rock", HELDOUT_REPLICAS)
 
 
 def paper_rock_nonsmooth_design() -> Design:
     """``paper_rock_design``'s scene by the nonsmooth DEM at the paper's 11 ms and
     100 sweeps (Servin et al. 2014), one run, its pile laid out alike and settled
     by that method."""
-    cfg = paper_config(method="nonsmooth", normal_stiffness=ROCK_STIFFNESS)
-    piles = (PileSpec("heldout_1500t", 17_500, seed=2),)
-    return Design("paper_rock_nonsmooth", cfg, paper_grid(cfg), piles,
-                  _heldout_runs("pile:heldout_1500t", ROCK_SCENES, ROCK_DURATION,
-                                first_seed=200, replicas=1),
-                  checkpoint_interval=10.0)
+    return _rock_design("paper_rock_nonsmooth", 1, method="nonsmooth")
 
 
 def reduced_heldout_design() -> Design:
