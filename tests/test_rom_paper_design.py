@@ -505,6 +505,30 @@ def test_the_rock_scene_is_the_heldout_pile_at_rock_stiffness_for_both_methods()
     assert all(r.duration == pd.ROCK_DURATION and r.inflow_rate == 0.0 for r in rock.runs)
 
 
+def test_the_rock_inflow_scene_feeds_the_same_pile_and_leaves_the_drain_runs_keys():
+    """``paper_rock_inflow``: the rock drain's pile (one settled pile key per method)
+    fed 2 t/s from the inlet while drained at 2 t/s, new seeds and tracking ids; the
+    committed drain runs keep their keys."""
+    rock, inflow, inflow_ns = (pd.get_design(name) for name in
+                               ("paper_rock", "paper_rock_inflow", "paper_rock_inflow_nonsmooth"))
+    assert pd.pile_key(rock, rock.piles[0]) == pd.pile_key(inflow, inflow.piles[0])
+    assert inflow.config == rock.config and inflow_ns.config.method == "nonsmooth"
+    assert [r.replica for r in inflow.runs] == [0, 1, 2]
+    assert all(r.inflow_rate == r.discharge_rate == 2000.0 for r in inflow.runs)
+    assert inflow_ns.runs == inflow.runs[:1]
+    assert not {r.seed for r in inflow.runs} & {r.seed for r in rock.runs}
+    committed = pd.committed_keys(pd.DATA_DIR.parent / "paper_rock")
+    assert set(committed) == {pd.run_key(rock, run) for run in rock.runs}
+
+
+def test_design_help_names_every_design():
+    done = subprocess.run([sys.executable, "-m", "minetwin.cli", "rom", "design", "--help"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    text = " ".join(done.stdout.split())
+    assert all(name in text for name in pd.DESIGNS), text
+
+
 def test_a_design_with_changed_settings_gets_new_keys_and_says_how_to_regenerate(tmp_path):
     design = pd.get_design("paper_rock_nonsmooth")
     more = pd.with_settings(design, {"solver_iterations": 200})

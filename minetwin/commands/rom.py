@@ -75,7 +75,11 @@ def register(subparsers) -> None:
     design.add_argument("--design", default="paper",
                         help="paper (default), reduced, paper_heldout (the held-out "
                              "scenes), paper_heldout_nonsmooth (those scenes by the "
-                             "nonsmooth DEM, one run each) or reduced_heldout")
+                             "nonsmooth DEM, one run each), paper_rock and "
+                             "paper_rock_inflow (a held-out pile at rock stiffness, "
+                             "drained, or fed and drained), paper_rock_nonsmooth and "
+                             "paper_rock_inflow_nonsmooth (those by the nonsmooth DEM) "
+                             "or reduced_heldout")
     design.add_argument("--work", required=True,
                         help="work directory: checkpoints, states and results")
     design.add_argument("--data", default=None,

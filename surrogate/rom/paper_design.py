@@ -343,18 +343,23 @@ E* = E / (2 (1 - nu^2)) = 26.7 GPa, k_n ~ E* d with the mean diameter 0.376 m
 ROCK_SCENES = (("rock_out2000", 2000.0, 0.0),)
 """The rock-stiffness scene: the held-out 1.5 kt pile drained at 2 t/s (no inflow)."""
 
+ROCK_INFLOW_SCENES = (("rock_out2000_in2000", 2000.0, 2000.0),)
+"""The rock-stiffness inflow scene: the held-out pile drained at 2 t/s while the
+inlet feeds 2 t/s onto it (the paper's throughput, falling about 30 m)."""
+
 ROCK_DURATION = 20.0
 """Simulated seconds [s] of the rock scene: at 1e10 N/m the explicit DEM's step is
 16 times shorter, so a 180 s replica would cost about 10 CPU hours."""
 
 
-def _rock_design(name: str, replicas: int, **settings) -> Design:
-    """The held-out pile at ``ROCK_STIFFNESS`` drained by ``ROCK_SCENES`` for
-    ``ROCK_DURATION`` s, ``replicas`` runs, with the DEM ``settings``."""
+def _rock_design(name: str, replicas: int, scenes=ROCK_SCENES, first_seed: int = 200,
+                 **settings) -> Design:
+    """The held-out pile at ``ROCK_STIFFNESS`` run through ``scenes`` for
+    ``ROCK_DURATION`` s, ``replicas`` runs each, with the DEM ``settings``."""
     cfg = paper_config(normal_stiffness=ROCK_STIFFNESS, **settings)
     return Design(name, cfg, paper_grid(cfg), (HELDOUT_PILE,),
-                  _heldout_runs(f"pile:{HELDOUT_PILE.name}", ROCK_SCENES, ROCK_DURATION,
-                                first_seed=200, replicas=replicas),
+                  _heldout_runs(f"pile:{HELDOUT_PILE.name}", scenes, ROCK_DURATION,
+                                first_seed=first_seed, replicas=replicas),
                   checkpoint_interval=10.0)
 
 
@@ -374,6 +379,20 @@ def paper_rock_nonsmooth_design() -> Design:
     return _rock_design("paper_rock_nonsmooth", 1, method="nonsmooth")
 
 
+def paper_rock_inflow_design() -> Design:
+    """``paper_rock_design``'s pile and method with ``ROCK_INFLOW_SCENES``: fed
+    2 t/s from the inlet while drained at 2 t/s, ``HELDOUT_REPLICAS`` explicit
+    replicas (the reference where falling disks hit the pile at rock stiffness)."""
+    return _rock_design("paper_rock_inflow", HELDOUT_REPLICAS, ROCK_INFLOW_SCENES, first_seed=210)
+
+
+def paper_rock_inflow_nonsmooth_design() -> Design:
+    """``paper_rock_inflow_design``'s scene by the nonsmooth DEM at the paper's
+    11 ms and 100 sweeps (Servin et al. 2014), one run."""
+    return _rock_design("paper_rock_inflow_nonsmooth", 1, ROCK_INFLOW_SCENES, first_seed=210,
+                        method="nonsmooth")
+
+
 def reduced_heldout_design() -> Design:
     """``paper_heldout_design`` on a few hundred disks and seconds (for tests)."""
     cfg = paper_config()
@@ -387,7 +406,9 @@ def reduced_heldout_design() -> Design:
 DESIGNS = {"paper": paper_design, "reduced": reduced_design,
            "paper_heldout": paper_heldout_design, "reduced_heldout": reduced_heldout_design,
            "paper_heldout_nonsmooth": paper_heldout_nonsmooth_design,
-           "paper_rock": paper_rock_design, "paper_rock_nonsmooth": paper_rock_nonsmooth_design}
+           "paper_rock": paper_rock_design, "paper_rock_nonsmooth": paper_rock_nonsmooth_design,
+           "paper_rock_inflow": paper_rock_inflow_design,
+           "paper_rock_inflow_nonsmooth": paper_rock_inflow_nonsmooth_design}
 
 
 def with_settings(design: Design, changes: dict) -> Design:
