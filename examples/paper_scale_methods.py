@@ -58,6 +58,7 @@ import numpy as np
 
 from cosim import jsonio
 from cosim.errors import ValidationError
+from surrogate.rom.method_score import BULK_DISTANCE, CREEP_FACTOR, bulk_speed, score_dem_method
 from surrogate.rom.metrics import WINDOW_S
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -114,6 +115,8 @@ def points(evaluation: dict, runs: list[dict]) -> dict:
                              "spread": method_row["tracking_error_spread"],
                              "cost_s_per_s": method_row["method_cost"]["cpu_s_per_simulated_s"],
                              "jammed": method_row["jammed"],
+                             "creeping": method_row["creeping"],
+                             "bulk_speed_m_s": method_row["bulk_speed_m_s"],
                              "discharged_kg": method_row["discharged_kg"],
                              "explicit_discharged_kg": method_row["explicit_discharged_kg"]})
             elif failed is not None:  # no outflow to score: where and when it blew up
@@ -179,6 +182,11 @@ def plot(result: dict, path: Path, window: float) -> None:
                             (p["cost_s_per_s"], p["tracking_error"]),
                             textcoords="offset points", xytext=(-10, 10), ha="right",
                             fontsize=7)
+            if p.get("creeping"):
+                ax.scatter(p["cost_s_per_s"], p["tracking_error"], facecolors="none",
+                           edgecolors="tab:red", marker="s", s=160, zorder=4,
+                           label=f"creeping: the bulk beyond {BULK_DISTANCE:g} m of the feeder "
+                                 f"moves > {CREEP_FACTOR:g}x the explicit DEM's")
             if "spread" in p:
                 ax.vlines(p["cost_s_per_s"], p["spread"]["min"], p["spread"]["max"],
                           color=colour, lw=1,
@@ -213,6 +221,7 @@ def _outcome(folder: Path, run: str) -> dict:
     with np.load(folder / "train" / f"{run}.npz") as stored:
         return {"time": np.asarray(stored["time"], dtype=np.float64),
                 "mass": np.asarray(stored["mass"], dtype=np.float64),
+                "velocity": np.asarray(stored["velocity"], dtype=np.float64),
                 "setpoint": np.asarray(stored["setpoint"], dtype=np.float64),
                 "out_time": np.asarray(stored["out_time"], dtype=np.float64),
                 "out_mass": np.asarray(stored["out_mass"], dtype=np.float64)}
@@ -222,54 +231,84 @@ def _grid(folder: Path) -> dict:
     return json.loads((folder / "manifest.json").read_text())["grid"]
 
 
+def _record(folder: Path, run: str) -> dict:
+    return next(r for r in json.loads((folder / "manifest.json").read_text())["runs"]
+                if r["name"] == run)
+
+
+def _field_map(ax, fig, field, grid: dict, title: str, top: float, cmap: str, unit: str):
+    image = ax.imshow(field, origin="lower", cmap=cmap, vmin=0.0, vmax=top, aspect="equal",
+                      extent=(grid["x_min"], grid["x_max"], grid["y_min"], grid["y_max"]))
+    ax.set_xlim(-40.0, 40.0)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title, fontsize=9)
+    fig.colorbar(image, ax=ax, label=unit, shrink=0.8)
+
+
 def plot_scene(scene: str, row: dict, label: str, method_data: Path, reference: Path,
                path: Path) -> None:
-    """The discharged mass over time and the pile at the end (areal mass on the ROM
-    grid) of explicit replica 0 and of the method."""
+    """Top: the discharged mass over time and the pile at the end (areal mass on the
+    ROM grid) of explicit replica 0 and of the method. Bottom: the speed of the bulk
+    beyond ``BULK_DISTANCE`` of the feeder over time, and the cells' speed at the end:
+    where a jam or a creep shows."""
     from cosim import plotstyle
 
     plt = plotstyle.pyplot()
-    runs = [("explicit DEM, replica " + name.rsplit("_r", 1)[1], _outcome(reference, name))
+    runs = [("explicit DEM, replica " + name.rsplit("_r", 1)[1], _outcome(reference, name),
+             bulk_speed(reference, _record(reference, name)))
             for name in row["explicit_replicas"]]
-    ours = (label, _outcome(method_data, row["method_run"]))
-    fig, axes = plt.subplots(1, 3, figsize=(17, 4.6),
+    ours = (label, _outcome(method_data, row["method_run"]),
+            bulk_speed(method_data, _record(method_data, row["method_run"])))
+    fig, axes = plt.subplots(2, 3, figsize=(17, 9.0),
                              gridspec_kw={"width_ratios": [1.0, 1.4, 1.4]})
-    for k, (label, run) in enumerate([*runs, ours]):
+    for k, (name, run, bulk) in enumerate([*runs, ours]):
         t0 = run["time"][0]
         order = np.argsort(run["out_time"], kind="stable")
         taken = run["out_time"][order] - t0
         style = dict(color="tab:purple", lw=2) if run is ours[1] else dict(
             color="tab:green", lw=1, alpha=0.4 + 0.2 * k)
-        axes[0].step(np.concatenate([[0.0], taken]),
-                     np.concatenate([[0.0], np.cumsum(run["out_mass"][order])]) / 1e3,
-                     where="post", label=label, **style)
+        axes[0, 0].step(np.concatenate([[0.0], taken]),
+                        np.concatenate([[0.0], np.cumsum(run["out_mass"][order])]) / 1e3,
+                        where="post", label=name, **style)
+        axes[1, 0].plot(run["time"] - t0, bulk, label=name, **style)
     t = np.linspace(0.0, row["simulated_s"], 50)
-    axes[0].plot(t, ours[1]["setpoint"].mean() * t / 1e3, color="black", ls=":", lw=1,
-                 label=f"set point, {ours[1]['setpoint'].mean() / 1e3:.2f} t/s")
-    axes[0].set_xlabel("time since the scene's start [s]")
-    axes[0].set_ylabel("discharged mass [t]")
-    axes[0].set_title("feeder output", fontsize=9)
-    plotstyle.legend(axes[0], fontsize=7)
+    axes[0, 0].plot(t, ours[1]["setpoint"].mean() * t / 1e3, color="black", ls=":", lw=1,
+                    label=f"set point, {ours[1]['setpoint'].mean() / 1e3:.2f} t/s")
+    axes[0, 0].set_xlabel("time since the scene's start [s]")
+    axes[0, 0].set_ylabel("discharged mass [t]")
+    axes[0, 0].set_title("feeder output", fontsize=9)
+    plotstyle.legend(axes[0, 0], fontsize=7)
+    axes[1, 0].set_yscale("log")
+    axes[1, 0].set_xlabel("time since the scene's start [s]")
+    axes[1, 0].set_ylabel("mean speed [m/s]")
+    axes[1, 0].set_title(f"bulk beyond {BULK_DISTANCE:g} m of the feeder's centre", fontsize=9)
+    plotstyle.legend(axes[1, 0], fontsize=7)
     grid = _grid(reference)
     cell_area = ((grid["x_max"] - grid["x_min"]) / grid["nx"]
                  * (grid["y_max"] - grid["y_min"]) / grid["ny"])
-    ends = [(runs[0][0], runs[0][1]), ours]
+    ends = [runs[0][:2], ours[:2]]
     top = max(float(run["mass"][-1].max()) for _, run in ends) / cell_area
-    for ax, (label, run) in zip(axes[1:], ends):
-        image = ax.imshow(run["mass"][-1] / cell_area, origin="lower", cmap="viridis",
-                          vmin=0.0, vmax=top, aspect="equal",
-                          extent=(grid["x_min"], grid["x_max"], grid["y_min"], grid["y_max"]))
-        ax.set_xlim(-40.0, 40.0)
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        ax.set_title(f"{label} at the end ({run['time'][-1] - run['time'][0]:.0f} s)",
-                     fontsize=9)
-        fig.colorbar(image, ax=ax, label="areal mass [kg/m^2]", shrink=0.8)
+    speeds = [np.ma.masked_where(run["mass"][-1] <= 0.0,
+                                 np.hypot(run["velocity"][-1, ..., 0], run["velocity"][-1, ..., 1]))
+              for _, run in ends]
+    fastest = max(float(np.percentile(speed.compressed(), 99)) for speed in speeds)
+    for column, ((name, run), speed) in enumerate(zip(ends, speeds), start=1):
+        when = f"at the end ({run['time'][-1] - run['time'][0]:.0f} s)"
+        _field_map(axes[0, column], fig, run["mass"][-1] / cell_area, grid, f"{name} {when}",
+                   top, "viridis", "areal mass [kg/m^2]")
+        _field_map(axes[1, column], fig, speed, grid, f"{name}: speed {when}", fastest,
+                   "magma", "speed [m/s]")
     verdict = (f"jammed: delivered {row['discharged_kg'] / 1e3:.0f} t of the explicit "
                f"DEM's {row['explicit_discharged_kg'] / 1e3:.0f} t, nothing after "
                f"{row['last_discharge_s']:.0f} s" if row["jammed"] else
                f"delivered {row['discharged_kg'] / 1e3:.0f} t, the explicit DEM "
                f"{row['explicit_discharged_kg'] / 1e3:.0f} t")
+    if row["creeping"]:
+        verdict += (f"; creeping: the bulk beyond {BULK_DISTANCE:g} m of the feeder moves at "
+                    f"{row['bulk_speed_m_s']:.3f} m/s, the explicit DEM's at "
+                    f"{min(row['explicit_bulk_speed_m_s']):.4f}-"
+                    f"{max(row['explicit_bulk_speed_m_s']):.4f} m/s")
     plotstyle.title(fig, f"{scene}: {label} against the explicit DEM", verdict)
     fig.tight_layout()
     plotstyle.save(fig, path, dpi=110)
@@ -288,8 +327,6 @@ def main(argv=None) -> int:
                         help="tracking-error window [s] (default 30; 5 for the 20 s rock scene)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
-    from surrogate.rom.method_score import score_dem_method
-
     try:
         runs = [score_dem_method(folder, args.reference, window=args.window)
                 for folder in args.method_data]
@@ -317,7 +354,12 @@ def main(argv=None) -> int:
                   f"discharged {row['discharged_kg'] / 1e3:.0f} t against the explicit "
                   f"DEM's {row['explicit_discharged_kg'] / 1e3:.0f} t"
                   + (f" (jammed: nothing left after {row['last_discharge_s']:.0f} s)"
-                     if row["jammed"] else ""))
+                     if row["jammed"] else "")
+                  + f"; bulk beyond {BULK_DISTANCE:g} m of the feeder at "
+                    f"{row['bulk_speed_m_s']:.4f} m/s, the explicit DEM's "
+                    f"{min(row['explicit_bulk_speed_m_s']):.4f}-"
+                    f"{max(row['explicit_bulk_speed_m_s']):.4f}"
+                  + (" (creeping)" if row["creeping"] else ""))
         for scene, row in methods["failed"].items():
             print(f"{scene}: {label}: blew up after {row['after_s']:.1f} s ({row['reason']}); "
                   f"picture at the failure: {row['picture']}")

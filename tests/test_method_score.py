@@ -18,11 +18,12 @@ HELDOUT = Path(__file__).resolve().parents[1] / "surrogate" / "rom" / "data" / "
 
 
 def _method_folder(tmp_path, run_name: str, shift_s: float = 0.0,
-                   stop_after_s: float | None = None) -> Path:
+                   stop_after_s: float | None = None, velocity_scale: float = 1.0) -> Path:
     """A design folder holding one run of the reference data, renamed replica 0 of
     its scene, its times moved by ``shift_s`` (another method's pile that settled to
     a later time); with ``stop_after_s``, its feeder delivers nothing after that
-    many seconds (a jam)."""
+    many seconds (a jam); with ``velocity_scale``, its cells move that many times
+    faster (a creep)."""
     manifest = json.loads((HELDOUT / "manifest.json").read_text())
     record = next(r for r in manifest["runs"] if r["name"] == run_name)
     scene = run_name.rsplit("_r", 1)[0]
@@ -36,6 +37,7 @@ def _method_folder(tmp_path, run_name: str, shift_s: float = 0.0,
         for key in [k for k in arrays if k.startswith("out_")]:
             arrays[key] = arrays[key][kept]
         record["discharged_mass_kg"] = float(arrays["out_mass"].astype(np.float64).sum())
+    arrays["velocity"] = arrays["velocity"] * np.float32(velocity_scale)
     for key in ("time", "out_time", "in_time"):
         arrays[key] = arrays[key] + np.asarray(shift_s, dtype=arrays[key].dtype)
     np.savez_compressed(folder / "train" / f"{scene}_r0.npz", **arrays)
@@ -74,6 +76,21 @@ def test_a_replica_scored_as_another_method_gets_its_mean_error_against_the_repl
         [replicas[f"heldout_q2000_r{k}"]["discharged_mass_kg"] for k in range(3)]), rel=1e-12)
     assert row["jammed"] is False and row["window_s"] == 30.0
     assert row["last_discharge_s"] > 179.0
+    assert row["bulk_speed_m_s"] == row["explicit_bulk_speed_m_s"][1] > 0.0
+    assert row["creeping"] is False
+
+
+def test_a_bulk_that_keeps_moving_beside_the_funnel_is_flagged_creeping(tmp_path):
+    """The replica's cells made 4 times faster: beyond 12 m of the feeder its bulk
+    moves more than 3 times as fast as every replica's (they differ by a few per cent),
+    while its outflow, and so its tracking error, is the replica's."""
+    plain = score_dem_method(_method_folder(tmp_path / "a", "heldout_q2000_r1"), HELDOUT)
+    fast = score_dem_method(_method_folder(tmp_path / "b", "heldout_q2000_r1",
+                                           velocity_scale=4.0), HELDOUT)
+    before, after = plain["scenes"]["heldout_q2000"], fast["scenes"]["heldout_q2000"]
+    assert after["bulk_speed_m_s"] == pytest.approx(4.0 * before["bulk_speed_m_s"], rel=1e-6)
+    assert after["creeping"] is True and after["jammed"] is False
+    assert after["tracking_error"] == before["tracking_error"]
 
 
 def test_a_feeder_that_stops_delivering_is_flagged_jammed_with_when(tmp_path):

@@ -22,6 +22,15 @@ whose pile does not refill the feeder zone delivers less. A scene is ``jammed``
 when the method's feeder delivered less than ``JAM_DELIVERED_SHARE`` of the
 explicit replicas' mean mass (the small-scene study's criterion, a funnel rate
 under half the reference's, is for an orifice without a set rate).
+
+A creep the outflow cannot see either: a pile that should rest beside the funnel
+keeps moving (an unconverged projected Gauss-Seidel leaves velocity in the
+bulk), while the feeder still delivers its set rate. ``bulk_speed_m_s`` is the
+mass-weighted mean speed of the ROM-grid cells whose centre lies more than
+``BULK_DISTANCE`` from the feeder's centre, averaged over the run's samples (the compact
+result's displacement velocity, ``surrogate.rom.grid``); a scene is ``creeping``
+when the method's exceeds ``CREEP_FACTOR`` times every explicit replica's (the
+small-scene study's compression criterion: 3 times the reference's).
 """
 
 from __future__ import annotations
@@ -41,6 +50,16 @@ JAM_DELIVERED_SHARE = 0.9
 """Share [-] of the explicit replicas' mean discharged mass under which a method's
 run is ``jammed`` (module docstring)."""
 
+BULK_DISTANCE = 12.0
+"""Distance [m] from the feeder's centre beyond which the pile is the resting bulk:
+the 8 m feeder's funnel of the explicit DEM moves it at 0.001-0.006 m/s there
+(the rock scenes' replicas, 20 s)."""
+
+CREEP_FACTOR = 3.0
+"""Ratio [-] of a method's ``bulk_speed_m_s`` to every explicit replica's above which
+its scene is ``creeping`` (module docstring)."""
+
+
 def _done_runs(data: Path) -> dict:
     """Finished runs of an exported design by scene (the name without ``_r<k>``)."""
     manifest = data / "manifest.json"
@@ -56,6 +75,22 @@ def _done_runs(data: Path) -> dict:
 def _outflow(data: Path, record: dict) -> dict:
     with np.load(data / "train" / f"{record['name']}.npz") as stored:
         return {k: np.asarray(stored[f"out_{k}"], dtype=np.float64) for k in OUTFLOW_KEYS}
+
+
+def bulk_speed(data: Path, record: dict) -> np.ndarray:
+    """Per sample of the run, the mass-weighted mean speed [m/s] of the cells more
+    than ``BULK_DISTANCE`` from the feeder's centre (grid and feeder: the run's
+    record)."""
+    grid, feeder_x = record["grid"], float(record["dem_config"]["outlets"][0])
+    with np.load(data / "train" / f"{record['name']}.npz") as stored:
+        mass = np.asarray(stored["mass"], dtype=np.float64)
+        velocity = np.asarray(stored["velocity"], dtype=np.float64)
+    dx = (grid["x_max"] - grid["x_min"]) / grid["nx"]
+    centres = grid["x_min"] + dx * (np.arange(grid["nx"]) + 0.5)
+    away = np.abs(centres - feeder_x) > BULK_DISTANCE
+    weight = mass[:, :, away].sum(axis=(1, 2))
+    moved = (mass * np.hypot(velocity[..., 0], velocity[..., 1]))[:, :, away].sum(axis=(1, 2))
+    return np.divide(moved, weight, out=np.zeros_like(moved), where=weight > 0)
 
 
 def _start_time(data: Path, record: dict) -> float:
@@ -110,6 +145,8 @@ def score_dem_method(method_data, reference_data, window: float = metrics.WINDOW
         discharged = float(runs[0]["discharged_mass_kg"])
         explicit_discharged = float(sum(r["discharged_mass_kg"] for r in replicas)
                                     / len(replicas))
+        method_bulk = float(bulk_speed(method_data, runs[0]).mean())
+        explicit_bulk = [float(bulk_speed(reference_data, r).mean()) for r in replicas]
         scenes[scene] = {
             "tracking_error": scores["tracking_error"],
             "tracking_error_spread": scores["tracking_error_spread"],
@@ -120,6 +157,8 @@ def score_dem_method(method_data, reference_data, window: float = metrics.WINDOW
             "method_mass_balance_error": float(runs[0]["mass_balance_error"]),
             "discharged_kg": discharged, "explicit_discharged_kg": explicit_discharged,
             "jammed": bool(discharged < JAM_DELIVERED_SHARE * explicit_discharged),
+            "bulk_speed_m_s": method_bulk, "explicit_bulk_speed_m_s": explicit_bulk,
+            "creeping": bool(method_bulk > CREEP_FACTOR * max(explicit_bulk)),
             # when the feeder last delivered: a jam shows as output stopping early
             "last_discharge_s": (float(outflow["time"].max()) - t0 if outflow["time"].size
                                  else 0.0),
