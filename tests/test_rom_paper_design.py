@@ -517,8 +517,9 @@ def test_the_rock_inflow_scene_feeds_the_same_pile_and_leaves_the_drain_runs_key
     assert all(r.inflow_rate == r.discharge_rate == 2000.0 for r in inflow.runs)
     assert inflow_ns.runs == inflow.runs[:1]
     assert not {r.seed for r in inflow.runs} & {r.seed for r in rock.runs}
-    committed = pd.committed_keys(pd.DATA_DIR.parent / "paper_rock")
-    assert set(committed) == {pd.run_key(rock, run) for run in rock.runs}
+    for design in (rock, inflow, inflow_ns):
+        committed = pd.committed_keys(pd.DATA_DIR.parent / design.name)
+        assert set(committed) == {pd.run_key(design, run) for run in design.runs}
 
 
 def test_design_help_names_every_design():
