@@ -1,7 +1,9 @@
 """The nonsmooth (time-implicit) DEM at the paper's 11 ms step (issue 22):
 impact law, statics without drift, Coulomb friction on an incline, mass and
-ids through a pour and a discharge, checkpoint and restart bit for bit."""
+ids through a pour and a discharge, checkpoint and restart bit for bit, and
+the solver's convergence read-out on a column as tall as the paper's pile."""
 
+import json
 import math
 
 import numpy as np
@@ -10,6 +12,7 @@ import pytest
 from surrogate.dem import Dem, DemConfig
 from surrogate.dem.builders import config_for_particles, pour_pile
 from surrogate.dem.config import GRAVITY
+from surrogate.dem.nonsmooth import convergence
 
 F16 = np.eye(16)[12]
 
@@ -177,3 +180,51 @@ def test_a_disk_pushed_fast_within_the_step_does_not_pass_a_gap_left_out():
     assert unchecked.max_overlap_ratio() > 0.2
     with pytest.raises(ValueError, match="missed_contact_resolves"):
         DemConfig(method="nonsmooth", missed_contact_resolves=-1)
+
+
+def _column(disks, seconds=1.0, **values):
+    """A column of ``disks`` equal disks (0.4 m) standing on the floor, run
+    ``seconds`` from rest; returns the DEM and the solver's convergence."""
+    dem = Dem(_config(inlets=[[0.0, 40.0]], **values))
+    d = 0.4
+    dem.place([[0.0, d / 2 + d * k] for k in range(disks)], dem.cfg.sphere_mass(d), 0.5, 1.0,
+              F16, 1)
+    before = dem.solver_stats.copy()
+    dem.advance(seconds)
+    return dem, convergence(dem.solver_stats, before, dem.dt, dem.cfg)
+
+
+def test_a_column_as_tall_as_the_paper_pile_rests_at_rock_stiffness_only_when_the_solver_converges():
+    """80 disks at k_n = 1e10 N/m: 100 sweeps do not carry the weight down the
+    column (the rows are nearly rigid; Gauss-Seidel needs about 80^2 / pi^2 sweeps
+    per e-fold of its error) and it bounces; 2,000 sweeps hold it still. The
+    convergence read-out tells the two apart; soft contacts converge at 100."""
+    stiff, stiff_convergence = _column(80, normal_stiffness=1e10)
+    assert not stiff_convergence["converged"]
+    assert stiff_convergence["steps"] == 91  # 1 s at 11 ms
+    # all but the first few steps, before the weight has built up, end unconverged
+    assert stiff_convergence["unconverged_steps"] > 0.8 * stiff_convergence["steps"]
+    assert np.abs(stiff.vel).max() > 0.05
+    still, still_convergence = _column(80, normal_stiffness=1e10, solver_iterations=2000)
+    assert still_convergence["converged"]
+    assert np.abs(still.vel).max() < 1e-4
+    _, soft_convergence = _column(80)
+    assert soft_convergence["converged"]
+
+
+def test_dem_discharge_reports_the_solver_and_warns_when_it_did_not_converge(tmp_path, capsys):
+    from minetwin.cli import main
+
+    stiff, _ = _column(80, seconds=0.1, normal_stiffness=1e10)
+    stiff.save_checkpoint(tmp_path / "column.npz")
+    out = tmp_path / "out"
+    assert main(["dem", "discharge", "--from", str(tmp_path / "column.npz"), "--rate", "0",
+                 "--duration", "0.5", "--out", str(out)]) == 0
+    solver = json.loads((out / "summary.json").read_text())["solver"]
+    assert solver["steps"] == 46 and not solver["converged"]
+    assert solver["mean_last_sweep_change_m_s"] > solver["residual_limit_m_s"]
+    assert "the nonsmooth solver did not converge" in capsys.readouterr().err
+    assert main(["dem", "discharge", "--from", str(tmp_path / "column.npz"), "--rate", "0",
+                 "--duration", "0.5", "--out", str(out), "--set", "solver_iterations=2000"]) == 0
+    assert json.loads((out / "summary.json").read_text())["solver"]["converged"]
+    assert "did not converge" not in capsys.readouterr().err

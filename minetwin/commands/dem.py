@@ -89,8 +89,10 @@ def _check_positive(name, value, allow_zero=False):
         raise ValidationError(name, ">= 0" if allow_zero else "> 0", f"got {value!r}")
 
 
-def _finish(dem, out, label, wall, steps, n_particle_steps, discharged_kg, balance):
-    """Write checkpoint, pictures and summary.json; print the summary."""
+def _finish(dem, out, label, wall, steps, counter, discharged_kg, balance):
+    """Write checkpoint, pictures and summary.json; print the summary (``counter``:
+    the command's ``_Counter``); warn on stderr when the nonsmooth solver did not
+    converge."""
 
     from surrogate.dem.analysis import angle_of_repose
     from surrogate.dem.plots import pile_pictures
@@ -102,7 +104,7 @@ def _finish(dem, out, label, wall, steps, n_particle_steps, discharged_kg, balan
         "dt_s": dem.dt,
         "steps": steps,
         "wall_s": wall,
-        "particle_steps_per_s": n_particle_steps / wall if wall > 0 else 0.0,
+        "particle_steps_per_s": counter.particle_steps / wall if wall > 0 else 0.0,
         "angle_of_repose_deg": angle_of_repose(dem.pos, dem.radius),
         "discharged_kg": discharged_kg,
         "mass_balance_rel_error": balance,
@@ -112,6 +114,19 @@ def _finish(dem, out, label, wall, steps, n_particle_steps, discharged_kg, balan
         "max_overlap_over_diameter": dem.max_overlap_ratio(),
         "list_builds": dem.list_builds,
     }
+    if dem.nonsmooth:
+        from surrogate.dem.nonsmooth import RESIDUAL_WARNING, convergence
+
+        solver = summary["solver"] = convergence(dem.solver_stats, counter.solver_stats, dem.dt,
+                                                 dem.cfg)
+        if not solver["converged"]:
+            print(f"{counter.command}: warning: the nonsmooth solver did not converge: its "
+                  f"last sweep still changed a velocity by "
+                  f"{solver['mean_last_sweep_change_m_s']:.3g} m/s on average, more than "
+                  f"{RESIDUAL_WARNING:g} g h = {solver['residual_limit_m_s']:.3g} m/s, so the "
+                  f"pile creeps instead of resting; more sweeps (solver_iterations, now "
+                  f"{solver['solver_iterations']}) or softer contacts (normal_stiffness) help "
+                  f"(surrogate/dem/README.md, \"Solver convergence\")", file=sys.stderr)
     jsonio.write(out / "summary.json", summary, indent=2)
     print(jsonio.dumps(summary, indent=2))
     return 0
@@ -131,11 +146,13 @@ class _Counter:
 
         # a continued state starts at its own time: count from there
         self.t0 = dem.time
+        self.command = label
         self.lines = Progress(label, duration, every_s=2.0)
         self.lines.note(COMPILE_NOTE)
         self.steps = dem.steps_done
         self.particle_steps = 0.0
         self.writer = None
+        self.solver_stats = dem.solver_stats.copy()
 
     def __call__(self, dem):
         self.particle_steps += dem.n * (dem.steps_done - self.steps)
@@ -203,8 +220,8 @@ def run_pile(args) -> int:
 
     label = run_label(scenario=f"dem pile ({args.method}, {args.particles} particles)",
                       seed=args.seed, model="dem")
-    return _finish(dem, out, label, wall, dem.steps_done, counter.particle_steps,
-                   dem.discharged_mass, dem.mass_balance_error())
+    return _finish(dem, out, label, wall, dem.steps_done, counter, dem.discharged_mass,
+                   dem.mass_balance_error())
 
 
 def run_discharge(args) -> int:
@@ -252,8 +269,8 @@ def run_discharge(args) -> int:
 
     label = run_label(scenario=f"dem discharge from {args.source} at {args.rate:g} kg/s",
                       model="dem")
-    return _finish(dem, out, label, wall, dem.steps_done - steps0,
-                   counter.particle_steps, discharged, balance)
+    return _finish(dem, out, label, wall, dem.steps_done - steps0, counter, discharged,
+                   balance)
 
 
 def setting_changes(items: list[str]) -> dict:

@@ -95,7 +95,8 @@ class Dem:
         self.solver = nonsmooth.solver_params(self.cfg)
         self.solver_stats = np.zeros(nonsmooth.N_STATS)
         """Nonsmooth solver totals: steps, sweeps, contact rows, last sweep's
-        largest velocity change [m/s], re-solves for missed contacts."""
+        largest velocity change [m/s], re-solves for missed contacts, unconverged
+        steps, sum of the steps' last-sweep changes [m/s] (``nonsmooth.run_steps``)."""
         self._skin = self.cfg.skin
         self.threads = self.cfg.threads
         """Threads of the explicit kernels (``DemConfig.threads``); may be changed."""
