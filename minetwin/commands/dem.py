@@ -119,7 +119,7 @@ def _finish(dem, out, label, wall, steps, counter, discharged_kg, balance):
 
         solver = summary["solver"] = convergence(dem.solver_stats, counter.solver_stats, dem.dt,
                                                  dem.cfg)
-        if not solver["converged"]:
+        if solver["converged"] is False:
             print(f"{counter.command}: warning: the nonsmooth solver did not converge: its "
                   f"last sweep still changed a velocity by "
                   f"{solver['mean_last_sweep_change_m_s']:.3g} m/s on average, more than "

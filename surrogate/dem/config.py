@@ -210,6 +210,10 @@ class DemConfig:
         Most times a nonsmooth step is solved again for contacts its solve
         closed but that were not rows (``nonsmooth.py``, item 6) [-] (3, in
         [0, 100]; 0 switches the check off, the solver before it).
+    solver_relaxation : float
+        Over-relaxation factor omega of the normal impulses in the sweeps [-]
+        (1: projected Gauss-Seidel, the paper's; in (0, 2): projected successive
+        over-relaxation, Cryer 1971, ``nonsmooth.py`` item 5).
 
     Blow-up guard (module docstring)
     --------------------------------
@@ -256,6 +260,7 @@ class DemConfig:
     stabilization_steps: float = 2.0
     impact_speed: float = 0.5
     missed_contact_resolves: int = 3
+    solver_relaxation: float = 1.0
     guard_speed_factor: float = 2.0
     guard_energy_growth: float = 0.5
     guard_overlap_ratio: float = 0.5
@@ -315,6 +320,10 @@ class DemConfig:
             if not (math.isfinite(value) and 0.0 <= value <= 1e3):
                 raise ValidationError(name, "in [0, 1000]", f"got {value!r}")
             setattr(self, name, value)
+        relaxation = float(self.solver_relaxation)
+        if not 0.0 < relaxation < 2.0:  # over-relaxation diverges from 2 on
+            raise ValidationError("solver_relaxation", "in (0, 2)", f"got {relaxation!r}")
+        self.solver_relaxation = relaxation
         for name, low, high in (("nonsmooth_dt", 0.0, 1.0), ("impact_speed", 0.0, 1e3),
                                 ("guard_speed_factor", 1.0, 1e6),
                                 ("guard_energy_growth", 0.0, 1e6),

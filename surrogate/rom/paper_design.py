@@ -439,7 +439,8 @@ def _digest(payload: dict) -> str:
 SETTINGS_SINCE_VERSION_1 = ("beverloo_c", "beverloo_k", "method", "nonsmooth_dt",
                             "solver_iterations", "solver_tolerance", "stabilization_steps",
                             "impact_speed", "guard_speed_factor", "guard_energy_growth",
-                            "guard_overlap_ratio", "missed_contact_resolves")
+                            "guard_overlap_ratio", "missed_contact_resolves",
+                            "solver_relaxation")
 """DEM settings added after the design's runs began (the nonsmooth method, the
 feeder's Beverloo bound, the blow-up guard). They enter a key only when they
 differ from their defaults, with which a run is the explicit DEM it was before
