@@ -67,12 +67,15 @@ REFERENCE = ROOT / "surrogate" / "rom" / "data" / "paper_heldout"
 
 
 def label_of(methods: dict) -> str:
-    """The method and its settings, e.g. "nonsmooth DEM, 11 ms, 100 sweeps"."""
+    """The method and its settings, e.g. "nonsmooth DEM, 11 ms, 100 sweeps" (with ",
+    over-relaxed 1.9" when its solver over-relaxes)."""
     settings = methods["method_settings"]
     if methods["method"] != "nonsmooth":
         return f"{methods['method']} DEM"
+    relaxation = settings.get("solver_relaxation", 1.0)
     return (f"nonsmooth DEM, {settings['nonsmooth_dt'] * 1e3:g} ms, "
-            f"{settings['solver_iterations']} sweeps")
+            f"{settings['solver_iterations']} sweeps"
+            + (f", over-relaxed {relaxation:g}" if relaxation != 1.0 else ""))
 
 
 def slug_of(methods: dict) -> str:
@@ -208,12 +211,13 @@ def plot(result: dict, path: Path, window: float) -> None:
         for handle, label in zip(*ax.get_legend_handles_labels()):
             shown.setdefault(label, handle)
     # below the panels: inside one it hides points (the jammed run's, at the right)
-    fig.legend(shown.values(), shown.keys(), fontsize=7, loc="lower center", ncol=4,
+    columns = 4 if len(scenes) > 1 else 3  # a one-scene figure is narrower
+    fig.legend(shown.values(), shown.keys(), fontsize=7, loc="lower center", ncol=columns,
                frameon=False)
     plotstyle.title(fig, "Paper-scale stockpile: tracking error against compute",
                     f"{window:g} s windows; DEM: CPU time, storage models: "
                     "wall time on one core")
-    fig.tight_layout(rect=(0.0, 0.13, 1.0, 1.0))
+    fig.tight_layout(rect=(0.0, 0.04 * -(-len(shown) // columns), 1.0, 1.0))
     plotstyle.save(fig, path, dpi=120)
 
 
@@ -295,9 +299,9 @@ def plot_scene(scene: str, row: dict, label: str, method_data: Path, reference: 
     fastest = max(float(np.percentile(speed.compressed(), 99)) for speed in speeds)
     for column, ((name, run), speed) in enumerate(zip(ends, speeds), start=1):
         when = f"at the end ({run['time'][-1] - run['time'][0]:.0f} s)"
-        _field_map(axes[0, column], fig, run["mass"][-1] / cell_area, grid, f"{name} {when}",
+        _field_map(axes[0, column], fig, run["mass"][-1] / cell_area, grid, f"{name}\n{when}",
                    top, "viridis", "areal mass [kg/m^2]")
-        _field_map(axes[1, column], fig, speed, grid, f"{name}: speed {when}", fastest,
+        _field_map(axes[1, column], fig, speed, grid, f"{name}:\nspeed {when}", fastest,
                    "magma", "speed [m/s]")
     verdict = (f"jammed: delivered {row['discharged_kg'] / 1e3:.0f} t of the explicit "
                f"DEM's {row['explicit_discharged_kg'] / 1e3:.0f} t, nothing after "

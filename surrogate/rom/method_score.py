@@ -183,7 +183,8 @@ def score_dem_method(method_data, reference_data, window: float = metrics.WINDOW
             "explicit_costs": {scene: _cost(replicas)
                                for scene, replicas in reference["scenes"].items()},
             "method_settings": {k: config[k] for k in ("nonsmooth_dt", "solver_iterations",
-                                                       "solver_tolerance", "normal_stiffness")
+                                                       "solver_tolerance", "solver_relaxation",
+                                                       "normal_stiffness")
                                 if k in config},
             "method_design": method["design"], "reference_design": reference["design"],
             "scenes": scenes, "failed": failed, "skipped": skipped}
