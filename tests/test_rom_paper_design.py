@@ -520,6 +520,10 @@ def test_the_rock_inflow_scene_feeds_the_same_pile_and_leaves_the_drain_runs_key
     for design in (rock, inflow, inflow_ns):
         committed = pd.committed_keys(pd.DATA_DIR.parent / design.name)
         assert set(committed) == {pd.run_key(design, run) for run in design.runs}
+    for name in ("paper_rock_nonsmooth", "paper_rock_inflow_nonsmooth"):  # over-relaxed
+        relaxed = pd.with_settings(pd.get_design(name), {"solver_relaxation": 1.9})
+        committed = pd.committed_keys(pd.DATA_DIR.parent / f"{name}_sor19")
+        assert set(committed) == {pd.run_key(relaxed, run) for run in relaxed.runs}
 
 
 def test_design_help_names_every_design():
