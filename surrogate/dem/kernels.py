@@ -467,7 +467,6 @@ def run_steps(n_steps, dt, time, pos, vel, omega, force, torque, radius, body_ma
     Returns ``(steps_done, time, n_removed, rebuild_needed, bad_row, bad_kind)``
     with ``bad_kind`` one of ``GUARD_NONE``, ``GUARD_SPEED``, ``GUARD_OUTSIDE``.
     """
-    n = pos.shape[0]
     g = params[P_G]
     limit2 = half_skin * half_skin
     speed2 = speed_limit * speed_limit
