@@ -69,17 +69,23 @@ def _core_rows(mass: np.ndarray, full: float, axis: np.ndarray) -> list[int]:
     return [j for j in range(mass.shape[1]) if kept[j, axis].all()]
 
 
+def _discharging_runs(samples: dict, names: list[str]):
+    """``(name, held, used)`` per run: the run's sample rows, and those of them
+    discharging at least ``LEAST_DISCHARGE``; runs with none are left out."""
+    for number, name in enumerate(names):
+        held = samples["run"] == number
+        used = held & (samples["discharge_rate"] >= LEAST_DISCHARGE)
+        if used.any():
+            yield name, held, used
+
+
 def compare(directory, velocity=(4, 4, 100.0), flux=(4, 4, 100.0, 0.5)) -> dict:
     """``{run name: {...}}``: the module docstring's quantities for the DEM, the
     velocity fit and the flux fit, each fitted without the run."""
     grid, container, samples, names, axis, full = _funnel_design(directory)
     _, y = grid.centres()
     out = {}
-    for number, name in enumerate(names):
-        held = samples["run"] == number
-        used = held & (samples["discharge_rate"] >= LEAST_DISCHARGE)
-        if not used.any():
-            continue
+    for name, held, used in _discharging_runs(samples, names):
         models = {
             "velocity": RomModel(grid, *velocity, container),
             "flux": RomModel(grid, *flux[:3], container, target="flux", flux_floor=flux[3]),
@@ -126,11 +132,7 @@ def projection_ceiling(directory, modes=(4, 8, 16), flux_floor: float = 0.5) -> 
     grid, container, samples, names, axis, full = _funnel_design(directory)
     shape = (-1, grid.ny, grid.nx, 2)
     out = {}
-    for number, name in enumerate(names):
-        held = samples["run"] == number
-        used = held & (samples["discharge_rate"] >= LEAST_DISCHARGE)
-        if not used.any():
-            continue
+    for name, held, used in _discharging_runs(samples, names):
         mass = samples["mass"][used].astype(np.float64)
         rows = _core_rows(mass, full, axis)
         upper = rows[len(rows) // 2:]
