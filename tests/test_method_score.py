@@ -17,33 +17,40 @@ from surrogate.rom.method_score import score_dem_method
 HELDOUT = Path(__file__).resolve().parents[1] / "surrogate" / "rom" / "data" / "paper_heldout"
 
 
-def _method_folder(tmp_path, run_name: str, shift_s: float = 0.0,
+def _method_folder(tmp_path, run_name: str | tuple, shift_s: float = 0.0,
                    stop_after_s: float | None = None, velocity_scale: float = 1.0) -> Path:
-    """A design folder holding one run of the reference data, renamed replica 0 of
-    its scene, its times moved by ``shift_s`` (another method's pile that settled to
-    a later time); with ``stop_after_s``, its feeder delivers nothing after that
-    many seconds (a jam); with ``velocity_scale``, its cells move that many times
+    """A design folder holding one run of the reference data (or several: a tuple
+    of names), renamed realisation 0 (1, ...) of its scene, its times moved by
+    ``shift_s`` (another method's pile that settled to a later time); with
+    ``stop_after_s``, its feeder delivers nothing after that many seconds (a jam);
+    with ``velocity_scale``, the first realisation's cells move that many times
     faster (a creep)."""
     manifest = json.loads((HELDOUT / "manifest.json").read_text())
-    record = next(r for r in manifest["runs"] if r["name"] == run_name)
-    scene = run_name.rsplit("_r", 1)[0]
-    record = dict(record, name=f"{scene}_r0", spec=dict(record["spec"], replica=0))
     folder = tmp_path / "method"
     (folder / "train").mkdir(parents=True)
-    with np.load(HELDOUT / "train" / f"{run_name}.npz") as stored:
-        arrays = {k: stored[k] for k in stored.files}
-    if stop_after_s is not None:
-        kept = arrays["out_time"] <= arrays["time"][0] + stop_after_s
-        for key in [k for k in arrays if k.startswith("out_")]:
-            arrays[key] = arrays[key][kept]
-        record["discharged_mass_kg"] = float(arrays["out_mass"].astype(np.float64).sum())
-    arrays["velocity"] = arrays["velocity"] * np.float32(velocity_scale)
-    for key in ("time", "out_time", "in_time"):
-        arrays[key] = arrays[key] + np.asarray(shift_s, dtype=arrays[key].dtype)
-    np.savez_compressed(folder / "train" / f"{scene}_r0.npz", **arrays)
+    records = []
+    names = (run_name,) if isinstance(run_name, str) else run_name
+    for realisation, name in enumerate(names):
+        record = next(r for r in manifest["runs"] if r["name"] == name)
+        scene = name.rsplit("_r", 1)[0]
+        record = dict(record, name=f"{scene}_r{realisation}",
+                      spec=dict(record["spec"], replica=realisation))
+        with np.load(HELDOUT / "train" / f"{name}.npz") as stored:
+            arrays = {k: stored[k] for k in stored.files}
+        if stop_after_s is not None:
+            kept = arrays["out_time"] <= arrays["time"][0] + stop_after_s
+            for key in [k for k in arrays if k.startswith("out_")]:
+                arrays[key] = arrays[key][kept]
+            record["discharged_mass_kg"] = float(arrays["out_mass"].astype(np.float64).sum())
+        if realisation == 0:
+            arrays["velocity"] = arrays["velocity"] * np.float32(velocity_scale)
+        for key in ("time", "out_time", "in_time"):
+            arrays[key] = arrays[key] + np.asarray(shift_s, dtype=arrays[key].dtype)
+        np.savez_compressed(folder / "train" / f"{record['name']}.npz", **arrays)
+        records.append(record)
     (folder / "manifest.json").write_text(json.dumps(
         {"design": "test", "dem_config": dict(manifest["dem_config"], method="nonsmooth"),
-         "runs": [record]}))
+         "runs": records}))
     return folder
 
 
@@ -78,6 +85,32 @@ def test_a_replica_scored_as_another_method_gets_its_mean_error_against_the_repl
     assert row["last_discharge_s"] > 179.0
     assert row["bulk_speed_m_s"] == row["explicit_bulk_speed_m_s"][1] > 0.0
     assert row["creeping"] is False
+
+
+def test_several_realisations_of_the_method_are_each_scored_and_averaged(tmp_path):
+    """Two replicas scored as two realisations of another method: the scene's error
+    is the mean over every realisation against every replica, the realisations'
+    own errors and spread are kept, a creep in one of them flags the scene."""
+    names = ("heldout_q2000_r1", "heldout_q2000_r2")
+    scores = score_dem_method(_method_folder(tmp_path / "a", names), HELDOUT)
+    row = scores["scenes"]["heldout_q2000"]
+    with np.load(HELDOUT / "train" / "heldout_q2000_r0.npz") as stored:
+        t0 = float(stored["time"][0])
+    expected = [[metrics.tracking_error(_outflow(name), _outflow(f"heldout_q2000_r{k}"),
+                                        t0, t0 + 180.0) for k in range(3)] for name in names]
+    assert [r["run"] for r in row["realisations"]] == ["heldout_q2000_r0", "heldout_q2000_r1"]
+    for realisation, errors in zip(row["realisations"], expected):
+        assert realisation["tracking_errors"] == pytest.approx(errors, rel=1e-12)
+        assert realisation["tracking_error"] == pytest.approx(np.mean(errors), rel=1e-12)
+    assert row["tracking_error"] == pytest.approx(np.mean(expected), rel=1e-12)
+    assert row["tracking_error_spread"]["n"] == 6 and row["realisation_spread"]["n"] == 2
+    assert row["realisation_spread"]["min"] == pytest.approx(min(np.mean(expected, axis=1)))
+    assert row["method_runs"] == ["heldout_q2000_r0", "heldout_q2000_r1"]
+    assert row["creeping"] is False and row["jammed"] is False
+    one_creeps = score_dem_method(_method_folder(tmp_path / "b", names, velocity_scale=4.0),
+                                  HELDOUT)["scenes"]["heldout_q2000"]
+    assert [r["creeping"] for r in one_creeps["realisations"]] == [True, False]
+    assert one_creeps["creeping"] is True
 
 
 def test_a_bulk_that_keeps_moving_beside_the_funnel_is_flagged_creeping(tmp_path):

@@ -267,7 +267,8 @@ def stable_replicas(heldout: Path) -> list[dict]:
     return [run for run in runs if not int(run.get("unstable", 0))]
 
 
-def _spread(values: list[float]) -> dict:
+def spread(values: list[float]) -> dict:
+    """Mean, min, max, standard deviation (ddof 1; 0 for one value) and count."""
     values = np.asarray(values, dtype=np.float64)
     return {"mean": float(values.mean()), "min": float(values.min()),
             "max": float(values.max()),
@@ -277,12 +278,14 @@ def _spread(values: list[float]) -> dict:
 
 def ensemble_score(outflow: dict, references: list[dict], t0: float, t1: float,
                    window: float = metrics.WINDOW_S) -> dict:
-    """``score`` against each DEM replica: the mean of each error, and the tracking
-    error's spread (mean, min, max, std, n)."""
+    """``score`` against each DEM replica: the mean of each error, the tracking
+    errors replica by replica (``tracking_errors``) and their spread (mean, min,
+    max, std, n)."""
     scores = [score(outflow, reference, t0, t1, window) for reference in references]
     out = {key: float(np.mean([s[key] for s in scores]))
            for key in ("tracking_error", "grade_error", "hardness_error")}
-    out["tracking_error_spread"] = _spread([s["tracking_error"] for s in scores])
+    out["tracking_errors"] = [float(s["tracking_error"]) for s in scores]
+    out["tracking_error_spread"] = spread([s["tracking_error"] for s in scores])
     return out
 
 
@@ -297,7 +300,7 @@ def noise_floor(references: list[dict], t0: float, t1: float, window: float = me
              for i in range(len(references)) for j in range(i + 1, len(references))]
     out = {key: float(np.mean([p[key] for p in pairs]))
            for key in ("tracking_error", "grade_error", "hardness_error")}
-    out["tracking_error_spread"] = _spread([p["tracking_error"] for p in pairs])
+    out["tracking_error_spread"] = spread([p["tracking_error"] for p in pairs])
     return out
 
 

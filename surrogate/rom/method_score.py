@@ -9,8 +9,13 @@ replica of the scene, averaged, with its spread; the noise floor is the explicit
 replicas' error among themselves (``evaluate.noise_floor``). The method's runs
 come from a held-out design of that method (``paper_design.
 paper_heldout_nonsmooth_design``: the same scenes, inflow, feed seeds and tracking
-ids), exported with ``minetwin rom design --export``; a scene is scored when the
-method's run and at least 2 explicit replicas of it finished.
+ids), exported with ``minetwin rom design --export``; a scene is scored when a
+run of the method and at least 2 explicit replicas of it finished. The method is
+chaotic too: each of its finished runs of a scene is one realisation (a design
+with replicas of that method, start states 1e-6 m apart), scored against every
+explicit replica (``realisations``); the scene's errors are the means over the
+realisations, ``tracking_error_spread`` spans every realisation against every
+replica, ``realisation_spread`` the realisations' own errors.
 
 Cost is wall and CPU seconds per simulated second of each run's record (the
 explicit DEM's: the mean over its replicas); the machines' load differed, so the
@@ -21,7 +26,8 @@ material reaches it, so every explicit replica delivers the set mass; a method
 whose pile does not refill the feeder zone delivers less. A scene is ``jammed``
 when the method's feeder delivered less than ``JAM_DELIVERED_SHARE`` of the
 explicit replicas' mean mass (the small-scene study's criterion, a funnel rate
-under half the reference's, is for an orifice without a set rate).
+under half the reference's, is for an orifice without a set rate), in any
+realisation.
 
 A creep the outflow cannot see either: a pile that should rest beside the funnel
 keeps moving (an unconverged projected Gauss-Seidel leaves velocity in the
@@ -30,7 +36,8 @@ mass-weighted mean speed of the ROM-grid cells whose centre lies more than
 ``BULK_DISTANCE`` from the feeder's centre, averaged over the run's samples (the compact
 result's displacement velocity, ``surrogate.rom.grid``); a scene is ``creeping``
 when the method's exceeds ``CREEP_FACTOR`` times every explicit replica's (the
-small-scene study's compression criterion: 3 times the reference's).
+small-scene study's compression criterion: 3 times the reference's) in any
+realisation.
 """
 
 from __future__ import annotations
@@ -42,7 +49,7 @@ import numpy as np
 
 from cosim.errors import ValidationError
 from surrogate.rom import metrics
-from surrogate.rom.evaluate import OUTFLOW_KEYS, ensemble_score, noise_floor
+from surrogate.rom.evaluate import OUTFLOW_KEYS, ensemble_score, noise_floor, spread
 from surrogate.rom.heldout_layout import finished_scenes, scene_of
 
 
@@ -109,6 +116,31 @@ def _cost(records: list) -> dict:
             "dt_s": float(records[0]["dt_s"]), "particles": int(records[0]["particles_start"])}
 
 
+def _realisation(method_data: Path, run: dict, references: list, t0: float, t1: float,
+                 window: float, explicit_discharged: float, explicit_bulk: list) -> dict:
+    """One run of the method scored against every explicit replica: its errors, what
+    its feeder delivered, and its bulk's speed (``jammed``, ``creeping``)."""
+    outflow = _outflow(method_data, run)
+    # the method's pile may have settled to a slightly different time: compare
+    # the same seconds after each run's start
+    outflow["time"] = outflow["time"] - _start_time(method_data, run) + t0
+    scores = ensemble_score(outflow, references, t0, t1, window=window)
+    discharged = float(run["discharged_mass_kg"])
+    bulk = float(bulk_speed(method_data, run).mean())
+    return {"run": run["name"],
+            "tracking_error": scores["tracking_error"],
+            "tracking_errors": scores["tracking_errors"],
+            "grade_error": scores["grade_error"], "hardness_error": scores["hardness_error"],
+            "discharged_kg": discharged,
+            "jammed": bool(discharged < JAM_DELIVERED_SHARE * explicit_discharged),
+            "bulk_speed_m_s": bulk,
+            "creeping": bool(bulk > CREEP_FACTOR * max(explicit_bulk)),
+            "mass_balance_error": float(run["mass_balance_error"]),
+            # when the feeder last delivered: a jam shows as output stopping early
+            "last_discharge_s": (float(outflow["time"].max()) - t0 if outflow["time"].size
+                                 else 0.0)}
+
+
 def score_dem_method(method_data, reference_data, window: float = metrics.WINDOW_S) -> dict:
     """Score the finished runs of ``method_data`` (an exported held-out design of
     another DEM method) against the explicit replicas in ``reference_data``, in
@@ -133,36 +165,35 @@ def score_dem_method(method_data, reference_data, window: float = metrics.WINDOW
         references = [_outflow(reference_data, r) for r in replicas]
         t0 = _start_time(reference_data, replicas[0])
         t1 = t0 + float(replicas[0]["spec"]["duration"])
-        outflow = _outflow(method_data, runs[0])
-        # the method's pile may have settled to a slightly different time: compare
-        # the same seconds after each run's start
-        outflow["time"] = outflow["time"] - _start_time(method_data, runs[0]) + t0
         if window > t1 - t0:
             raise ValidationError("window", f"at most the scene's {t1 - t0:g} s",
                                   f"got {window:g} s for {scene}")
-        scores = ensemble_score(outflow, references, t0, t1, window=window)
-        floor = noise_floor(references, t0, t1, window=window)
-        discharged = float(runs[0]["discharged_mass_kg"])
         explicit_discharged = float(sum(r["discharged_mass_kg"] for r in replicas)
                                     / len(replicas))
-        method_bulk = float(bulk_speed(method_data, runs[0]).mean())
         explicit_bulk = [float(bulk_speed(reference_data, r).mean()) for r in replicas]
+        realisations = [_realisation(method_data, run, references, t0, t1, window,
+                                     explicit_discharged, explicit_bulk) for run in runs]
+        floor = noise_floor(references, t0, t1, window=window)
         scenes[scene] = {
-            "tracking_error": scores["tracking_error"],
-            "tracking_error_spread": scores["tracking_error_spread"],
+            **{key: float(np.mean([r[key] for r in realisations]))
+               for key in ("tracking_error", "grade_error", "hardness_error",
+                           "discharged_kg", "bulk_speed_m_s")},
+            # every realisation against every replica
+            "tracking_error_spread": spread([e for r in realisations
+                                              for e in r["tracking_errors"]]),
+            "realisation_spread": spread([r["tracking_error"] for r in realisations]),
+            "realisations": realisations,
             "tracking_error_dem_noise_floor": floor["tracking_error"],
             "dem_noise_floor_spread": floor["tracking_error_spread"],
-            "grade_error": scores["grade_error"], "hardness_error": scores["hardness_error"],
-            "method_cost": _cost(runs[:1]),
-            "method_mass_balance_error": float(runs[0]["mass_balance_error"]),
-            "discharged_kg": discharged, "explicit_discharged_kg": explicit_discharged,
-            "jammed": bool(discharged < JAM_DELIVERED_SHARE * explicit_discharged),
-            "bulk_speed_m_s": method_bulk, "explicit_bulk_speed_m_s": explicit_bulk,
-            "creeping": bool(method_bulk > CREEP_FACTOR * max(explicit_bulk)),
-            # when the feeder last delivered: a jam shows as output stopping early
-            "last_discharge_s": (float(outflow["time"].max()) - t0 if outflow["time"].size
-                                 else 0.0),
-            "method_run": runs[0]["name"], "explicit_replicas": [r["name"] for r in replicas],
+            "method_cost": _cost(runs),
+            "method_mass_balance_error": max(r["mass_balance_error"] for r in realisations),
+            "explicit_discharged_kg": explicit_discharged,
+            "explicit_bulk_speed_m_s": explicit_bulk,
+            "jammed": any(r["jammed"] for r in realisations),
+            "creeping": any(r["creeping"] for r in realisations),
+            "last_discharge_s": min(r["last_discharge_s"] for r in realisations),
+            "method_run": runs[0]["name"], "method_runs": [r["name"] for r in runs],
+            "explicit_replicas": [r["name"] for r in replicas],
             "simulated_s": t1 - t0, "window_s": float(window)}
     failed = {}
     for scene, record in method["unstable"].items():
