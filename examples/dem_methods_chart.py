@@ -5,7 +5,8 @@ scenes, stiffnesses, reference, observables and failure criteria): a settled
 pile, a funnel discharge and an inflow onto a pile, at the soft k_n = 4e7 N/m
 and a rock k_n = 1e10 N/m (granite, E = 50 GPa), each by the explicit DEM at
 0.25 (the reference, and a replica 1e-6 m apart for the noise floor) to 8
-stable steps and by the nonsmooth DEM at 1-20 ms x 10-200 sweeps. The runs
+stable steps and by the nonsmooth DEM at 1-20 ms x 10-200 sweeps, plain and
+over-relaxed (1.9). The runs
 go through ``cosim.batch.run_calls`` on ``--workers`` processes (one core
 each).
 
@@ -16,7 +17,7 @@ Writes into ``--out``:
 * ``dem_methods_soft.png`` and ``dem_methods_rock.png``: per observable one
   panel of its error against wall seconds per simulated second (log axis),
   explicit as one line over its steps, nonsmooth one line per sweep count
-  over its steps, failures marked, the noise floor drawn;
+  over its steps (dashed: over-relaxed), failures marked, the noise floor drawn;
 * ``failures/RUN/pile_speed.png`` (and grade, residence time): the pile at
   each failure.
 
@@ -47,7 +48,7 @@ PANELS = (
 """(scene, column, y label, panel title) of the chart panels."""
 
 CSV_COLUMNS = ("scene", "stiffness", "normal_stiffness_N_m", "method", "dt_s", "dt_over_stable",
-               "iterations", "replica", "reference", "simulated_s", "wall_s_per_simulated_s",
+               "iterations", "relaxation", "replica", "reference", "simulated_s", "wall_s_per_simulated_s",
                "mean_sweeps_per_step", "particles", "mean_penetration", "max_penetration",
                "angle_of_repose_deg", "discharge_rate_kg_s", "beverloo_kg_s", "angle_error_deg",
                "discharge_rate_error", "penetration_ratio_to_reference", "tracking_error",
@@ -83,24 +84,30 @@ def plot(table: list[dict], stiffness: str, k_n: float, path: Path) -> Path:
                 and not r["reference"] and r["replica"] == 0]
         finite = [r[column] for r in rows if r[column] is not None]
         top = 1.15 * max(finite) if finite else 1.0
-        series = [("explicit", None)] + sorted(
-            {("nonsmooth", r["iterations"]) for r in rows if r["method"] == "nonsmooth"},
-            key=lambda s: s[1])
-        for k, (method, iterations) in enumerate(series):
+        sweeps = sorted({r["iterations"] for r in rows if r["method"] == "nonsmooth"})
+        # a sweep count keeps its colour; over-relaxed, its line is dashed
+        series = [("explicit", None, None)] + sorted(
+            {("nonsmooth", r["iterations"], r["relaxation"]) for r in rows
+             if r["method"] == "nonsmooth"}, key=lambda s: (s[1], s[2]))
+        for method, iterations, relaxation in series:
             mine = sorted((r for r in rows if r["method"] == method
-                           and r["iterations"] == iterations), key=lambda r: r["dt_s"])
+                           and r["iterations"] == iterations
+                           and r["relaxation"] == relaxation), key=lambda r: r["dt_s"])
             good = [r for r in mine if r[column] is not None and r["wall_s_per_simulated_s"]]
             label = ("explicit, 0.5-8 stable steps" if method == "explicit"
-                     else f"nonsmooth, {iterations} sweeps, 1-20 ms")
-            style = {"color": colours[k % len(colours)],
-                     "marker": "s" if method == "explicit" else "o", "ms": 5}
+                     else f"nonsmooth, {iterations} sweeps"
+                     + (f", over-relaxed {relaxation:g}" if relaxation != 1.0 else "")
+                     + ", 1-20 ms")
+            colour = colours[0 if method == "explicit" else 1 + sweeps.index(iterations)]
+            style = {"color": colour, "marker": "s" if method == "explicit" else (
+                "o" if relaxation == 1.0 else "^"), "ms": 5}
             ax.plot([r["wall_s_per_simulated_s"] for r in good], [r[column] for r in good],
-                    "-", label=label, **style)
+                    "-" if relaxation in (None, 1.0) else "--", label=label, **style)
             if method == "explicit":
                 for r in good:
                     ax.annotate(f"{r['dt_over_stable']:g}x", (r["wall_s_per_simulated_s"],
                                                                r[column]), fontsize=7)
-            elif iterations == max(s[1] for s in series if s[0] == "nonsmooth"):
+            elif iterations == sweeps[-1] and relaxation == 1.0:
                 for r in good:
                     ax.annotate(f"{r['dt_s'] * 1e3:g} ms", (r["wall_s_per_simulated_s"],
                                                              r[column]), fontsize=7)

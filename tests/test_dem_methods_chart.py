@@ -58,12 +58,13 @@ def test_the_quick_study_writes_a_complete_strict_table_and_styled_charts(tmp_pa
     result = _strict((tmp_path / "dem_methods.json").read_text())
     runs = result["runs"]
     per_group = 2 + len(size.explicit_factors) + len(size.nonsmooth_steps) * len(
-        size.nonsmooth_iterations)
+        size.nonsmooth_iterations) * len(size.nonsmooth_relaxations)
+    assert size.nonsmooth_relaxations == (1.0, study.OVER_RELAXATION)
     groups = {(r["scene"], r["stiffness"]) for r in runs}
     assert groups == {(s, k) for s in ("settled", "funnel", "inflow") for k in ("soft", "rock")}
     assert len(runs) == 6 * per_group
-    keys = {(r["scene"], r["stiffness"], r["method"], r["dt_s"], r["iterations"], r["replica"])
-            for r in runs}
+    keys = {(r["scene"], r["stiffness"], r["method"], r["dt_s"], r["iterations"],
+             r["relaxation"], r["replica"]) for r in runs}
     assert len(keys) == len(runs)  # every planned run once
     durations = {"settled": size.settled_s, "funnel": size.funnel_s,
                  "inflow": size.inflow_total_s}
@@ -71,12 +72,13 @@ def test_the_quick_study_writes_a_complete_strict_table_and_styled_charts(tmp_pa
         assert r["normal_stiffness_N_m"] == study.STIFFNESSES[r["stiffness"]]
         if r["method"] == "nonsmooth":
             assert r["iterations"] in size.nonsmooth_iterations
+            assert r["relaxation"] in size.nonsmooth_relaxations
             # a step solved again for missed contacts sweeps again
             resolves = DemConfig().missed_contact_resolves
             assert 0.0 < r["mean_sweeps_per_step"] <= r["iterations"] * (1 + resolves)
             assert any(abs(r["dt_s"] - dt) < 1e-15 for dt in size.nonsmooth_steps)
         else:
-            assert r["iterations"] is None
+            assert r["iterations"] is None and r["relaxation"] is None
             assert any(abs(r["dt_over_stable"] - f) < 1e-9
                        for f in (study.REFERENCE_FACTOR, *size.explicit_factors))
         if r["reference"]:

@@ -36,7 +36,9 @@ Methods, on each scene and stiffness (from the same start state):
 * explicit at 0.5, 1, 2, 4 and 8 stable steps (``EXPLICIT_FACTORS``);
 * nonsmooth (``nonsmooth.py``) at 1, 2, 5, 11 and 20 ms with 10, 25, 50, 100
   and 200 projected Gauss-Seidel sweeps at most (``solver_tolerance``
-  1e-6 m/s ends a solve earlier).
+  1e-6 m/s ends a solve earlier), each with the paper's plain sweeps
+  (``solver_relaxation`` 1) and over-relaxed at ``OVER_RELAXATION`` (1.9;
+  projected SOR of the normal impulses, Cryer 1971, ``DemConfig.solver_relaxation``).
 
 Failures, by stated criteria (``FAILURE_CRITERIA``): an explicit run that
 blows up is stopped by the DEM's guard (``DemBlowUp``: what, time and
@@ -85,6 +87,11 @@ REFERENCE_FACTOR = 0.25
 EXPLICIT_FACTORS = (0.5, 1.0, 2.0, 4.0, 8.0)
 NONSMOOTH_STEPS = (0.001, 0.002, 0.005, 0.011, 0.02)
 NONSMOOTH_ITERATIONS = (10, 25, 50, 100, 200)
+OVER_RELAXATION = 1.9
+"""The over-relaxation [-] the study runs beside the plain sweeps: the value that
+held the rock-stiffness paper-scale pile at rest at 100 sweeps
+(``surrogate/dem/README.md``)."""
+NONSMOOTH_RELAXATIONS = (1.0, OVER_RELAXATION)
 PERTURBATION = 1e-6
 """Shift of the replica's start positions [m]."""
 
@@ -125,6 +132,7 @@ class StudySize:
     explicit_factors: tuple = EXPLICIT_FACTORS
     nonsmooth_steps: tuple = NONSMOOTH_STEPS
     nonsmooth_iterations: tuple = NONSMOOTH_ITERATIONS
+    nonsmooth_relaxations: tuple = NONSMOOTH_RELAXATIONS
 
 
 FULL = StudySize()
@@ -242,12 +250,14 @@ def _picture(snapshot: dict, folder: Path, name: str) -> str:
 def run_method(start: str, scene: str, stiffness: str, method: str, size: StudySize,
                factor: float | None = None, dt: float | None = None,
                iterations: int | None = None, replica: int = 0,
-               pictures: str | None = None) -> dict:
+               pictures: str | None = None, relaxation: float = 1.0) -> dict:
     """One run of ``scene`` from the checkpoint ``start``: the row of the table
     (observables, cost, failure if any; see the module docstring)."""
     changes = {"method": method}
     if iterations is not None:
         changes["solver_iterations"] = int(iterations)
+    if relaxation != 1.0:
+        changes["solver_relaxation"] = float(relaxation)
     dem = Dem.load_checkpoint(start, changes)
     if replica:
         rng = np.random.default_rng(1000 + replica)
@@ -295,7 +305,8 @@ def run_method(start: str, scene: str, stiffness: str, method: str, size: StudyS
     row = {"scene": scene, "stiffness": stiffness, "normal_stiffness_N_m": dem.cfg.normal_stiffness,
            "method": method, "dt_s": dem.dt, "stable_dt_s": dem.stable_dt,
            "dt_over_stable": dem.dt / dem.stable_dt if method == "explicit" else None,
-           "iterations": iterations, "replica": replica,
+           "iterations": iterations,
+           "relaxation": relaxation if method == "nonsmooth" else None, "replica": replica,
            "simulated_s": simulated, "wall_s": wall,
            "wall_s_per_simulated_s": wall / simulated if simulated > 0 else None,
            "mean_sweeps_per_step": (float(dem.solver_stats[1] / dem.solver_stats[0])
@@ -333,6 +344,8 @@ def run_label(row: dict) -> str:
         how = f"explicit_{row['dt_over_stable']:.3g}x"
     else:
         how = f"nonsmooth_{row['dt_s'] * 1e3:.3g}ms_{row['iterations']}it"
+        if row.get("relaxation", 1.0) != 1.0:
+            how += f"_sor{row['relaxation']:g}"
     return f"{row['scene']}_{row['stiffness']}_{how}_r{row['replica']}"
 
 
@@ -350,8 +363,10 @@ def plan(paths: dict, size: StudySize, pictures: str) -> list[tuple]:
             calls.append((run_method, {**common, "method": "explicit", "factor": factor}))
         for dt in size.nonsmooth_steps:
             for iterations in size.nonsmooth_iterations:
-                calls.append((run_method, {**common, "method": "nonsmooth", "dt": dt,
-                                           "iterations": iterations}))
+                for relaxation in size.nonsmooth_relaxations:
+                    calls.append((run_method, {**common, "method": "nonsmooth", "dt": dt,
+                                               "iterations": iterations,
+                                               "relaxation": relaxation}))
 
     def cost(call):
         kw = call[1]
