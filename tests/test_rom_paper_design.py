@@ -551,3 +551,23 @@ def test_a_design_with_changed_settings_gets_new_keys_and_says_how_to_regenerate
 
     assert main(["rom", "design", "--design", "paper", "--work", str(tmp_path / "w"),
                  "--set", "friction=0.5"]) == 2  # not into the package's data
+
+
+def test_only_runs_keeps_the_named_runs_their_start_runs_and_their_keys():
+    design = pd.get_design("reduced")
+    only = pd.only_runs(design, ["small_depleted_out500_in1500"])
+    # the depleted run starts from the drain's end, so the drain runs too
+    assert [r.name for r in only.runs] == ["small_drain_out1500", "small_depleted_out500_in1500"]
+    assert all(pd.run_key(only, r) == pd.run_key(design, r) for r in only.runs)
+    assert [r.name for r in pd.only_runs(design, ["small_out1000_in1000"]).runs] == [
+        "small_out1000_in1000"]
+
+
+def test_only_refuses_a_run_the_design_does_not_have_by_name(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "minetwin.cli", "rom", "design", "--design",
+                           "reduced", "--only", "no_such_run", "--work", str(tmp_path / "w")],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert "--only" in done.stderr and "small_drain_out1500" in done.stderr
+    assert "no_such_run" in done.stderr and "Traceback" not in done.stderr
+    assert not (tmp_path / "w").exists()  # nothing run

@@ -92,6 +92,10 @@ def register(subparsers) -> None:
                         help="run the design with this DemConfig field changed, e.g. "
                              "solver_iterations=200 (repeatable; new keys, so its runs sit "
                              "beside the named design's; use its own --work and --data)")
+    design.add_argument("--only", action="append", default=[], metavar="RUN",
+                        help="run only this run of the design (repeatable; a name from "
+                             "--status, e.g. heldout_q2000_r0); --plan, --status and "
+                             "--export still cover the whole design")
     design.add_argument("--plan", action="store_true",
                         help="print the runs, their keys and planned particle-steps; run nothing")
     design.add_argument("--rate", type=float, default=None,
@@ -259,6 +263,8 @@ def run_design(args) -> int:
         print(f"exported {manifest['runs_done']} of {manifest['runs_total']} runs "
               f"({manifest['bytes'] / 1e6:.1f} MB) to {data}", file=sys.stderr)
         return 0
+    if args.only:
+        design = paper_design.only_runs(design, args.only)
     with executors.make(args) as executor:
         manifest = paper_design.run_design(design, args.work, data, executor=executor)
     done = sum(r["status"] == "done" for r in manifest["runs_finished"])

@@ -422,6 +422,24 @@ def with_settings(design: Design, changes: dict) -> Design:
     return dataclasses.replace(design, config=config, changed=tuple(sorted(merged.items())))
 
 
+def only_runs(design: Design, names) -> Design:
+    """``design`` reduced to the runs ``names`` (and the runs they start from, so
+    a chain still runs in order); their keys are the whole design's."""
+    from cosim.errors import ValidationError
+
+    known = [r.name for r in design.runs]
+    wanted = set(names)
+    unknown = sorted(wanted - set(known))
+    if unknown:
+        raise ValidationError("--only", f"runs of {design.name}: {', '.join(known)}",
+                              f"got {', '.join(unknown)}")
+    for run in reversed(design.runs):  # add each wanted run's start run
+        kind, _, start = run.start.partition(":")
+        if run.name in wanted and kind == "run":
+            wanted.add(start)
+    return dataclasses.replace(design, runs=tuple(r for r in design.runs if r.name in wanted))
+
+
 def get_design(name: str) -> Design:
     if name not in DESIGNS:
         from cosim.errors import ValidationError
