@@ -15,7 +15,11 @@ its wall seconds per simulated second (log axis):
   above 1). A step that blows the DEM up (``surrogate.rom.doe.instability``:
   a disk leaving the container, faster than twice the free-fall speed, or
   overlapping by half a diameter) is stopped there and drawn as an X at the
-  cost it reached, labelled "unstable".
+  cost it reached, labelled "unstable";
+- the nonsmooth DEM (the paper's method: Servin, Wang, Lacoursiere and Bodin
+  2014; ``surrogate.dem.nonsmooth``) from the same start at the settings
+  ``NONSMOOTH_SETTINGS``: the paper's 11 ms and 100 projected Gauss-Seidel
+  sweeps, fewer sweeps, a longer step, and over-relaxed (``solver_relaxation``).
 
 The DEM's chaos floor (two DEM runs 1e-6 m apart) is drawn as a line.
 
@@ -58,6 +62,29 @@ within seconds (disks flung out of the container). The guard stops those runs
 and the chart marks them "unstable" at the cost they reached. (Before the
 guard, an unstable run went on at a crawl.)"""
 
+NONSMOOTH_SETTINGS = ((0.011, 100, 1.0), (0.011, 25, 1.0), (0.02, 100, 1.0),
+                      (0.011, 100, 1.9))
+"""``(step [s], sweeps, solver_relaxation)`` of the nonsmooth DEM points: the
+paper's setting first."""
+
+
+def nonsmooth_runs() -> tuple:
+    """``(file name, DemConfig changes)`` of the nonsmooth DEM runs."""
+    runs = []
+    for step, sweeps, relaxation in NONSMOOTH_SETTINGS:
+        name = f"dem_nonsmooth_{step * 1e3:g}ms_{sweeps}it" + (
+            f"_relaxed{relaxation:g}" if relaxation != 1.0 else "")
+        runs.append((name, {"method": "nonsmooth", "nonsmooth_dt": step,
+                            "solver_iterations": sweeps, "solver_relaxation": relaxation}))
+    return tuple(runs)
+
+
+def nonsmooth_label(changes: dict) -> str:
+    return (f"{changes['nonsmooth_dt'] * 1e3:g} ms, {changes['solver_iterations']} sweeps"
+            + (f", over-relaxed {changes['solver_relaxation']:g}"
+               if changes["solver_relaxation"] != 1.0 else ""))
+
+
 MODE_COUNTS = (2, 4, 8, 16)
 """POD mode counts (mass and velocity) of the ROM points."""
 
@@ -98,7 +125,7 @@ def plot_ladder(result: dict, path) -> None:
     reference_factor = result["reference_dt_factor"]
     scenario = next(s for s in doe.HELDOUT_SCENARIOS if s.name == result["scenario"])
     colours = {"fifo": "tab:red", "mixing": "tab:orange", "rom_dem": "tab:blue",
-               "rom_rule": "tab:purple", "dem": "tab:green"}
+               "rom_rule": "tab:purple", "dem": "tab:green", "dem_nonsmooth": "tab:brown"}
     top = 1.08  # unstable runs have no score: their X sits above the scale
     fig, ax = plt.subplots(figsize=(9, 6))
     for p in points:
@@ -110,10 +137,11 @@ def plot_ladder(result: dict, path) -> None:
     # the families (ROM per surface layer, in mode order; DEM, in step order) lie
     # too close for a label per point: one line each, and a list (setting: error)
     # beside it
-    stable_dem = [p for p in points if p["kind"] == "dem" and not p.get("unstable")]
+    scored = [p for p in points if not p.get("unstable")]
     legend_of = {"rom_dem": "ROM, surface layer by DEM (POD modes, * cross-validated)",
                  "rom_rule": "ROM, surface layer by sandpile rule",
-                 "dem": "DEM at a time step (x stable_dt)"}
+                 "dem": "DEM at a time step (x stable_dt)",
+                 "dem_nonsmooth": "nonsmooth DEM (step, sweeps)"}
     families = (
         ("rom_dem", "o", 1, "modes: error", lambda p: p["modes"],
          lambda p: "/".join(str(m) for m in dict.fromkeys(p["modes"]))
@@ -122,16 +150,18 @@ def plot_ladder(result: dict, path) -> None:
          lambda p: "/".join(str(m) for m in dict.fromkeys(p["modes"]))
          + ("*" if "default" in p["label"] else "")),
         ("dem", "o", -1, "dt / stable_dt: error", lambda p: p["dt_factor"],
-         lambda p: f"{p['dt_factor']:g}"))
+         lambda p: f"{p['dt_factor']:g}"),
+        # settings, not a ladder: points without a line
+        ("dem_nonsmooth", "D", 1, "nonsmooth: error", lambda p: p["wall_s_per_simulated_s"],
+         lambda p: p["setting"]))
     for kind, marker, side, title, order, name in families:
-        family = sorted((p for p in (stable_dem if kind == "dem" else points)
-                         if p["kind"] == kind), key=order)
+        family = sorted((p for p in scored if p["kind"] == kind), key=order)
         if not family:
             continue
         x = [p["wall_s_per_simulated_s"] for p in family]
         y = [p["tracking_error"] for p in family]
-        ax.plot(x, y, color=colours[kind], marker=marker, lw=0.8, ms=6, zorder=3,
-                label=legend_of[kind])
+        ax.plot(x, y, color=colours[kind], marker=marker, ms=6, zorder=3,
+                lw=0.0 if kind == "dem_nonsmooth" else 0.8, label=legend_of[kind])
         rows = [f"{name(p)}: {p['tracking_error']:.2f}" for p in family]
         anchor = (max(x) if side > 0 else min(x), float(np.mean(y)))
         ax.annotate(f"{title}\n" + "\n".join(rows), anchor, textcoords="offset points",
@@ -141,17 +171,19 @@ def plot_ladder(result: dict, path) -> None:
                           "alpha": 0.85})
     unstable = [p for p in points if p.get("unstable")]
     for k, p in enumerate(sorted(unstable, key=lambda p: p["wall_s_per_simulated_s"])):
-        ax.scatter(p["wall_s_per_simulated_s"], top, color=colours["dem"], marker="x", s=60,
-                   zorder=3)
+        ax.scatter(p["wall_s_per_simulated_s"], top, color=colours[p["kind"]], marker="x",
+                   s=60, zorder=3)
         # labels stacked below the row of Xs, each with a leader to its X
-        ax.annotate(f"dt = {p['dt_factor']:g} stable_dt: unstable at "
+        what = (f"dt = {p['dt_factor']:g} stable_dt" if p["kind"] == "dem"
+                else f"nonsmooth {p['setting']}")
+        ax.annotate(f"{what}: unstable at "
                     f"{p['unstable_at_s']:.3g} s", (p["wall_s_per_simulated_s"], top),
                     textcoords="offset points", xytext=(-20, -14 * (k + 1)), ha="right",
                     fontsize=7, arrowprops={"arrowstyle": "-", "lw": 0.5, "color": "grey"})
     ax.scatter(fine_wall, 0.0, color=colours["dem"], marker="*", s=90, zorder=3,
                label=f"reference: DEM dt = {reference_factor:g} stable_dt")
     ax.scatter([], [], color=colours["dem"], marker="x",
-               label="DEM blown up (forced step): cost reached")
+               label="DEM blown up (the guard stopped it): cost reached")
     ax.axhline(floor, color="grey", ls="--", lw=1,
                label=f"DEM chaos floor (1e-6 m perturbation): {floor:.2f}")
     ax.axhline(0.10, color="black", ls=":", lw=1, label="target 0.10")
@@ -240,7 +272,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     ev.build_data(data, quick=args.quick, seed=args.seed, progress=progress,
                   reference_dt_factors=DT_FACTORS, workers=args.workers,
-                  dt_ladder_scenarios=(args.scenario,))
+                  dt_ladder_scenarios=(args.scenario,), method_runs=nonsmooth_runs())
     heldout = data / args.scenario
     reference_factor = min(DT_FACTORS)
     fine = ev.load_run(heldout / f"dem_dt{reference_factor:g}.npz")
@@ -294,6 +326,21 @@ def main(argv=None) -> int:
             progress(f"{label}: {points[-1]}")
         else:
             add(label, "dem", ev.outflow_of(run), float(run["wall_s"]), dt_factor=factor)
+    for name, changes in nonsmooth_runs():
+        run = ev.load_run(heldout / f"{name}.npz")
+        setting = nonsmooth_label(changes)
+        label = f"nonsmooth DEM {setting}"
+        if int(run.get("unstable", 0)):
+            reached = float(run["unstable_at"])
+            points.append({"label": f"{label}: unstable at {reached:.3g} s",
+                           "kind": "dem_nonsmooth", "setting": setting, "solver": changes,
+                           "unstable": True, "unstable_at_s": reached,
+                           "why": str(run["unstable_reason"]), "tracking_error": None,
+                           "wall_s_per_simulated_s": float(run["wall_s"]) / max(reached, 1e-9)})
+            progress(f"{label}: {points[-1]}")
+        else:
+            add(label, "dem_nonsmooth", ev.outflow_of(run), float(run["wall_s"]),
+                setting=setting, solver=changes)
     dem = ev.load_run(heldout / "dem.npz")
     floor = metrics.tracking_error(ev.outflow_of(ev.load_run(heldout / "dem_perturbed.npz")),
                                    ev.outflow_of(dem), t0, t1)

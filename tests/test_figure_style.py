@@ -288,7 +288,13 @@ def test_example_figures(figures, tmp_path):
               {"kind": "rom_dem", "label": "ROM 4/4 (default)", "modes": [4, 4],
                "wall_s_per_simulated_s": 1e-2, "tracking_error": 0.2},
               {"kind": "dem", "label": "DEM 2", "dt_factor": 2.0,
-               "wall_s_per_simulated_s": 10.0, "tracking_error": 0.05}]
+               "wall_s_per_simulated_s": 10.0, "tracking_error": 0.05},
+              {"kind": "dem_nonsmooth", "label": "nonsmooth DEM 11 ms, 100 sweeps",
+               "setting": "11 ms, 100 sweeps", "wall_s_per_simulated_s": 2.0,
+               "tracking_error": 0.1},
+              {"kind": "dem_nonsmooth", "label": "nonsmooth DEM 20 ms, 10 sweeps",
+               "setting": "20 ms, 10 sweeps", "wall_s_per_simulated_s": 0.5, "unstable": True,
+               "unstable_at_s": 12.0, "tracking_error": None}]
     ladder.plot_ladder({"points": points, "dem_noise_floor": 0.04,
                         "reference_wall_s_per_simulated_s": 20.0, "reference_dt_factor": 1.0,
                         "scenario": doe.HELDOUT_SCENARIOS[0].name}, tmp_path / "ladder.png")

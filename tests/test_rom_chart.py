@@ -69,3 +69,17 @@ def test_instability_names_each_cause():
     # a third disk nearly on top of the first: the overlap rule
     dem.place(np.array([[-1.0 + 0.1 * dem.radius[0], 0.3]]), 100.0, 0.5, 1.0, doe.FEED_F, 1)
     assert "overlap" in doe.instability(dem)
+
+
+def test_a_run_with_config_changes_continues_the_same_pile_by_that_method(heldout):
+    """The chart's nonsmooth points: the same start and feed, the method changed;
+    it runs to the end at the paper's 11 ms and delivers what the feeder took
+    (the feeder's set rate over the run, as the explicit run)."""
+    grid = doe.grid_of(tiny_config())
+    changes = {"method": "nonsmooth", "solver_iterations": 25}
+    ev._run_heldout_dem(heldout, "dem_nonsmooth", grid, 0.0, 1.0, 0, None, changes=changes)
+    run = ev.load_run(heldout / "dem_nonsmooth.npz")
+    assert int(run["unstable"]) == 0
+    assert float(run["dt"]) == 0.011
+    assert run["field_mass"].shape[0] == DURATION + 1 - doe.VELOCITY_WINDOW
+    assert run["out_mass"].sum() == pytest.approx(150.0 * DURATION, abs=200.0)

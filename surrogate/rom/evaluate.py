@@ -87,19 +87,23 @@ def _run_training(directory: Path, scenario, first_tracking_id: int, seed: int, 
 
 def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
                reference_dt_factors=(), workers: int = 2,
-               dt_ladder_scenarios=(doe.HELDOUT.name,), executor=None) -> Path:
+               dt_ladder_scenarios=(doe.HELDOUT.name,), executor=None,
+               method_runs=()) -> Path:
     """Run the DOE and the held-out DEM runs into ``directory``; runs already
     on disk are kept. Independent DEM runs go to ``executor`` (``cosim.batch``;
     default: ``workers`` local processes). The held-out scenarios named in
     ``dt_ladder_scenarios`` also run the DEM at
     ``reference_dt_factors`` times its stable step (``dem_dt<factor>.npz``;
-    forced steps, stopped and marked when they blow up)."""
+    forced steps, stopped and marked when they blow up), and once per
+    ``(name, changes)`` of ``method_runs`` with those ``DemConfig`` changes from
+    the same start (``<name>.npz``; e.g. the nonsmooth method)."""
     from surrogate.dem import Dem
 
     if executor is None:
         with batch.LocalExecutor(workers) as executor:
             return build_data(directory, quick, seed, progress, reference_dt_factors,
-                              dt_ladder_scenarios=dt_ladder_scenarios, executor=executor)
+                              dt_ladder_scenarios=dt_ladder_scenarios, executor=executor,
+                              method_runs=method_runs)
     directory = Path(directory)
     if (directory / "doe.json").is_file() and doe.read_meta(directory).get("quick") and not quick:
         _say(progress, f"{directory} holds the quick design: growing it to the full design "
@@ -137,14 +141,16 @@ def build_data(directory, quick: bool = True, seed: int = 0, progress=None,
             Dem.load_checkpoint(piles[scenario.fill]).save_checkpoint(initial)
         if not (heldout / "emissions.npz").exists():
             _write_emissions(heldout, Dem.load_checkpoint(initial), scenario, seed + 100 * k)
-        runs = [(name, PERTURBATION if k else 0.0, 1.0)
+        runs = [(name, PERTURBATION if k else 0.0, 1.0, None)
                 for k, name in enumerate(replica_names(DEM_REPLICAS))]
         if scenario.name in dt_ladder_scenarios:  # the speed-vs-accuracy chart's DEM ladder
-            runs += [(f"dem_dt{f:g}", 0.0, f) for f in reference_dt_factors]
+            runs += [(f"dem_dt{f:g}", 0.0, f, None) for f in reference_dt_factors]
+            runs += [(name, 0.0, 1.0, dict(changes)) for name, changes in method_runs]
         jobs += [(_run_heldout_dem, {"heldout": heldout, "name": name, "grid": grid,
                                      "perturbation": perturb, "dt_factor": factor,
-                                     "seed": seed, "progress": progress})
-                 for name, perturb, factor in runs if not (heldout / f"{name}.npz").exists()]
+                                     "seed": seed, "progress": progress, "changes": changes})
+                 for name, perturb, factor, changes in runs
+                 if not (heldout / f"{name}.npz").exists()]
     batch.run_calls(jobs, executor)  # the results are files: order plays no part
     return directory
 
@@ -193,15 +199,16 @@ def _emission_batches(emissions: dict, t0: float, steps: int):
 
 
 def _run_heldout_dem(heldout: Path, name: str, grid: Grid, perturbation: float,
-                     dt_factor: float, seed: int, progress) -> None:
-    """One DEM run of the held-out scenario into ``heldout/<name>.npz``. A run
+                     dt_factor: float, seed: int, progress, changes: dict | None = None) -> None:
+    """One DEM run of the held-out scenario into ``heldout/<name>.npz``, with the
+    ``DemConfig`` ``changes`` if any (e.g. ``{"method": "nonsmooth"}``). A run
     that blows up (``doe.instability``) stops there and is saved with
     ``unstable`` = 1, ``unstable_at`` [s after t0], ``unstable_reason``, its
     outflow and wall time so far (no fields)."""
     from surrogate.dem import Dem
 
     _say(progress, f"DEM: held-out run {heldout.name}/{name}")
-    dem = Dem.load_checkpoint(heldout / "initial.npz")
+    dem = Dem.load_checkpoint(heldout / "initial.npz", changes or None)
     if dt_factor != 1.0:
         dem.set_dt(dem.stable_dt * dt_factor, force=True)
     if perturbation:  # each replica moved in directions of its own
