@@ -61,6 +61,11 @@ def register(subparsers) -> None:
                                "(RomStorage's packing_density; default: the model's "
                                "container's; the DEM's mean settled density of a design: "
                                "python -m surrogate.rom.packing --data DIR)")
+    evaluate.add_argument("--rest-fraction", type=float, default=None, metavar="SHARE",
+                          help="share of the feeder's mean outlet speed below which a cell "
+                               "of the ROM's field rests (RomStorage's rest_fraction; default "
+                               "0: off; fitted on a design: python -m surrogate.rom.rest "
+                               "--data DIR, 0.08 on the paper design)")
     _model_options(evaluate)
     evaluate.set_defaults(handler=run_evaluate)
     design = sub.add_parser(
@@ -185,7 +190,7 @@ def run_evaluate(args) -> int:
                            rom_options={"surface": args.surface,
                                         **{k: getattr(args, k)
                                            for k in ("transport", "packing", "velocity_model",
-                                                     "packing_density")
+                                                     "packing_density", "rest_fraction")
                                            if getattr(args, k) is not None}},
                            executor=executor)
     # the file scored, so that `fidelity calibrate` ties the ROM card to it

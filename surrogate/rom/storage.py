@@ -151,6 +151,13 @@ packing_density : float, optional
     density on a training design: ``surrogate.rom.packing.settled_density``
     (paper design: 564.2 kg/m^2, 0.908 of 621.1; surrogate/rom/README.md,
     "Packing at the DEM's mean settled density").
+rest_fraction : float
+    Share [-] of the feeder's mean outlet speed q_out / (rho_A W) below which
+    a cell of the predicted field is at rest (its velocity 0) before the
+    transport (``surrogate.rom.rest``; default 0: off). The share fitted on
+    the paper-scale training design is ``surrogate.rom.rest.REST_FRACTION``
+    (0.08). On the paper-scale held-out scenes: surrogate/rom/README.md,
+    "The resting bulk".
 """
 
 from __future__ import annotations
@@ -173,6 +180,7 @@ from surrogate.rom.handover import drop_heights
 from surrogate.rom.kinematic import DIFFUSION_LENGTH, hybrid_field
 from surrogate.rom.kinematic import velocity_field as kinematic_field
 from surrogate.rom.model import OutOfTrainingRange, RomModel
+from surrogate.rom.rest import at_rest
 from surrogate.rom.surface import (column_width, deposit, feeder_take, settle,
                                    surface_heights)
 from surrogate.rom.surface_dem import SurfaceDem
@@ -265,8 +273,10 @@ class RomStorage(StorageModel):
                  transport: str = "balanced", packing: str = "avalanche", fill: float = FILL,
                  relax: float = 1.0, velocity_model: str = "regressed",
                  diffusion_length: float = DIFFUSION_LENGTH,
-                 packing_density: float | None = None):
+                 packing_density: float | None = None, rest_fraction: float = 0.0):
         super().__init__(rng=rng)
+        self.rest_fraction = float(check_finite_range("rest_fraction", rest_fraction, 0.0,
+                                                      1.0))
         self.packing_density = (None if packing_density is None else float(check_finite_range(
             "packing_density", packing_density, 0.0, low_open=True, unit="kg/m^2")))
         if velocity_model not in VELOCITY_MODELS:
@@ -477,13 +487,14 @@ class RomStorage(StorageModel):
         (ny, nx) [kg] and the rates [kg/s], before the transport projects it (no
         range check)."""
         if self.velocity_model == "regressed":
-            return self.model.predict(mass, discharge_rate, inflow_rate, check=False)
-        kinematic = kinematic_field(self.model.grid, self.container, discharge_rate,
-                                    self.diffusion_length)
-        if self.velocity_model == "kinematic":
-            return kinematic
-        return hybrid_field(self.model.predict(mass, discharge_rate, inflow_rate, check=False),
-                            kinematic, self.model.grid, self.container)
+            field = self.model.predict(mass, discharge_rate, inflow_rate, check=False)
+        else:
+            kinematic = kinematic_field(self.model.grid, self.container, discharge_rate,
+                                        self.diffusion_length)
+            field = kinematic if self.velocity_model == "kinematic" else hybrid_field(
+                self.model.predict(mass, discharge_rate, inflow_rate, check=False),
+                kinematic, self.model.grid, self.container)
+        return at_rest(field, discharge_rate, self.container, self.rest_fraction)
 
     def _refresh_field(self, t: float, rate: float):
         """The flow ``(field, faces)``, predicted again every ``update_interval`` or on

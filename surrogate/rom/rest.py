@@ -1,0 +1,143 @@
+"""The resting bulk: cells the ROM's field moves slower than a share of the feeder's speed stay put.
+
+Source: in funnel flow the material beside the flowing core is stagnant
+(Nedderman 1992, "Statics and kinematics of granular materials", Cambridge
+University Press, ch. 10: the stagnant zone of a bunker in core flow); the
+DEM's flanks rest (0.001-0.006 m/s beyond 12 m of the 8 m feeder,
+``method_score.BULK_DISTANCE``). The regression's few smooth POD modes cannot
+give a field that is zero there: on the paper-scale held-out scenes its flanks
+(12-40 m from the feeder) sink by 1.9-3.1 m of column fill in 180 s where the
+DEM's sink by 0.1-1.1 m (``surrogate.rom.column_profile``), so the feeder draws
+them instead of the core the inflow refills.
+
+Rule (``at_rest``): a cell whose predicted speed |v| [m/s] is below
+``rest_fraction`` times the feeder's mean outlet speed q_out / (rho_A W)
+(q_out the discharge rate [kg/s], rho_A the container's areal density
+[kg/m^2], W its outlet width [m]) is at rest: its velocity is 0. With no
+discharge nothing changes. The transport's projection then makes the moving
+cells carry the feeder's flux.
+
+The share is chosen on a training design (``fit``), not on held-out scenes:
+every discharging sample's bulk cells (at least ``transport.FILL`` of a full
+cell) are classified by the DEM's own speed, at rest below ``DEM_REST_SPEED``
+and moving above ``DEM_MOVING_SPEED``, and the share maximises Youden's index
+(Youden 1950, "Index for rating diagnostic tests", Cancer 3:32-35): the
+fraction of the resting cells the rule stops less the fraction of the moving
+cells it stops. On the paper design (``python -m surrogate.rom.rest --data
+surrogate/rom/data/paper_design``): 0.08 (``REST_FRACTION``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from cosim.errors import ValidationError
+
+REST_FRACTION = 0.08
+"""Share [-] of the feeder's mean outlet speed below which a cell rests, fitted on
+the paper-scale training design (module docstring)."""
+
+DEM_REST_SPEED = 0.01
+"""A DEM cell slower than this [m/s] is at rest (``fit``)."""
+
+DEM_MOVING_SPEED = 0.05
+"""A DEM cell faster than this [m/s] moves (``fit``)."""
+
+FRACTIONS = (0.02, 0.04, 0.06, 0.08, 0.1, 0.12, 0.15, 0.2)
+"""Shares [-] ``fit`` scores."""
+
+
+def outlet_speed(discharge_rate: float, container) -> float:
+    """The feeder's mean outlet speed q_out / (rho_A W) [m/s]."""
+    return float(discharge_rate) / (container.areal_density * container.outlet_width)
+
+
+def at_rest(field: np.ndarray, discharge_rate: float, container,
+            rest_fraction: float) -> np.ndarray:
+    """``field`` (ny, nx, 2) [m/s] with the cells slower than ``rest_fraction``
+    times the outlet speed set to 0 (module docstring)."""
+    threshold = rest_fraction * outlet_speed(discharge_rate, container)
+    if threshold <= 0.0:
+        return field
+    slow = np.hypot(field[..., 0], field[..., 1]) < threshold
+    return np.where(slow[..., None], 0.0, field)
+
+
+def fit(data, model, fractions=FRACTIONS, min_discharge: float = 100.0) -> dict:
+    """Youden's index of ``at_rest`` for each share in ``fractions`` on the
+    training design ``data`` (an exported design folder), the model's prediction
+    at every sample discharging at least ``min_discharge`` [kg/s]. Returns
+    ``{"fractions", "rest_stopped", "moving_stopped", "youden", "best", "cells"}``."""
+    from surrogate.rom.transport import FILL
+
+    data = Path(data)
+    manifest = data / "manifest.json"
+    if not manifest.is_file():
+        raise ValidationError("--data", "an exported design folder with manifest.json",
+                              f"{data} has none")
+    container = model.container
+    full = model.full_cell_mass
+    resting, moving = [], []
+    for record in json.loads(manifest.read_text())["runs"]:
+        with np.load(data / "train" / f"{record['name']}.npz") as stored:
+            mass = np.asarray(stored["mass"], dtype=np.float64)
+            velocity = np.asarray(stored["velocity"], dtype=np.float64)
+            rates = np.asarray(stored["discharge_rate"], dtype=np.float64)
+            inflows = np.asarray(stored["inflow_rate"], dtype=np.float64)
+        for cells, dem, rate, inflow in zip(mass, velocity, rates, inflows):
+            if rate < min_discharge:
+                continue
+            predicted = model.predict(cells, rate, inflow, check=False)
+            share = np.hypot(predicted[..., 0], predicted[..., 1]) / outlet_speed(rate,
+                                                                                  container)
+            speed = np.hypot(dem[..., 0], dem[..., 1])
+            bulk = cells >= FILL * full
+            resting.append(share[bulk & (speed < DEM_REST_SPEED)])
+            moving.append(share[bulk & (speed > DEM_MOVING_SPEED)])
+    if not resting:
+        raise ValidationError("--data", f"runs discharging at least {min_discharge:g} kg/s",
+                              f"{data} has none")
+    resting, moving = np.concatenate(resting), np.concatenate(moving)
+    fractions = [float(f) for f in fractions]
+    rest_stopped = [float(np.mean(resting < f)) for f in fractions]
+    moving_stopped = [float(np.mean(moving < f)) for f in fractions]
+    youden = [r - m for r, m in zip(rest_stopped, moving_stopped)]
+    return {"fractions": fractions, "rest_stopped": rest_stopped,
+            "moving_stopped": moving_stopped, "youden": youden,
+            "best": fractions[int(np.argmax(youden))],
+            "cells": {"resting": int(resting.size), "moving": int(moving.size)}}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m surrogate.rom.rest",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", required=True, help="exported training design folder")
+    parser.add_argument("--model", default=None,
+                        help="ROM model file (default: the shipped paper-scale ROM)")
+    args = parser.parse_args(argv)
+    from surrogate.rom.model import RomModel
+    from surrogate.rom.storage import DEFAULT_MODEL
+
+    try:
+        result = fit(args.data, RomModel.load(args.model or DEFAULT_MODEL))
+    except (ValidationError, OSError) as error:
+        print(f"rest: error: {error}", file=sys.stderr)
+        return 2
+    print(f"bulk cells of discharging samples: {result['cells']['resting']} at rest in the DEM "
+          f"(< {DEM_REST_SPEED:g} m/s), {result['cells']['moving']} moving "
+          f"(> {DEM_MOVING_SPEED:g} m/s)")
+    print("share  resting stopped  moving stopped  Youden")
+    for row in zip(result["fractions"], result["rest_stopped"], result["moving_stopped"],
+                   result["youden"]):
+        print("{:5.2f}  {:15.3f}  {:14.3f}  {:6.3f}".format(*row))
+    print(f"best share: {result['best']:g}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,89 @@
+"""The resting bulk (``surrogate.rom.rest``, ``RomStorage(rest_fraction=...)``) and
+the column-fill diagnosis that motivated it (``surrogate.rom.column_profile``)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cosim.errors import ValidationError
+from surrogate.rom import column_profile, rest
+from surrogate.rom.model import RomModel
+from surrogate.rom.storage import DEFAULT_MODEL, RomStorage
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / "surrogate" / "rom" / "data"
+
+
+def test_cells_slower_than_the_share_of_the_outlet_speed_rest():
+    model = RomModel.load(DEFAULT_MODEL)
+    container = model.container
+    speed = rest.outlet_speed(2000.0, container)
+    assert speed == pytest.approx(2000.0 / (container.areal_density * container.outlet_width))
+    field = np.zeros((2, 3, 2))
+    field[0, 0] = (0.0, -0.07 * speed)   # slower than 0.08 of it: rests
+    field[0, 1] = (0.05 * speed, -0.06 * speed)  # |v| = 0.078: rests
+    field[1, 2] = (0.0, -0.09 * speed)   # moves on
+    out = rest.at_rest(field, 2000.0, container, 0.08)
+    assert np.array_equal(out[0, 0], [0.0, 0.0]) and np.array_equal(out[0, 1], [0.0, 0.0])
+    assert np.array_equal(out[1, 2], field[1, 2])
+    assert rest.at_rest(field, 0.0, container, 0.08) is field  # no discharge: as it is
+    assert rest.at_rest(field, 2000.0, container, 0.0) is field  # off
+
+
+def test_the_share_is_fitted_on_the_training_design_by_youdens_index():
+    model = RomModel.load(DEFAULT_MODEL)
+    result = rest.fit(DATA / "paper_design", model)
+    assert result["best"] == rest.REST_FRACTION == 0.08
+    assert result["youden"] == pytest.approx(
+        [r - m for r, m in zip(result["rest_stopped"], result["moving_stopped"])])
+    # a larger share stops more of both
+    assert np.all(np.diff(result["rest_stopped"]) >= 0)
+    assert np.all(np.diff(result["moving_stopped"]) >= 0)
+    assert result["cells"]["resting"] > result["cells"]["moving"] > 1000
+
+
+def test_the_storage_rests_its_predicted_field_and_refuses_a_bad_share():
+    storage = RomStorage(rest_fraction=0.08)
+    mass = np.zeros(storage.model.grid.shape)
+    mass[:10, 30:50] = storage.model.full_cell_mass
+    plain = storage.model.predict(mass, 2000.0, 2000.0, check=False)
+    assert np.array_equal(storage.predicted_field(mass, 2000.0, 2000.0),
+                          rest.at_rest(plain, 2000.0, storage.container, 0.08))
+    assert np.array_equal(RomStorage().predicted_field(mass, 2000.0, 2000.0), plain)
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValidationError, match="rest_fraction"):
+            RomStorage(rest_fraction=bad)
+
+
+def test_the_fit_refuses_a_folder_without_a_design_with_exit_2(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "surrogate.rom.rest", "--data",
+                           str(tmp_path / "none")], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 2
+    assert "--data" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_the_column_profile_compares_the_rom_with_every_replica(tmp_path):
+    code = column_profile.main(["--data", str(DATA / "paper_heldout"), "--scene",
+                                "heldout_q2000", "--out", str(tmp_path)])
+    assert code == 0
+    written = json.loads((tmp_path / "column_profile_heldout_q2000.json").read_text())
+    assert (tmp_path / "column_profile_heldout_q2000.png").stat().st_size > 10_000
+    rom, dem = np.array(written["rom"]), [np.array(d) for d in written["dem"]]
+    assert len(dem) == 3 and all(d.shape == rom.shape for d in dem)
+    assert rom.shape == (len(written["time_s"]), len(written["x_m"]))
+    # the replicas' fill is their stored mass per column over rho_A dx
+    model = RomModel.load(DEFAULT_MODEL)
+    with np.load(DATA / "paper_heldout" / "train" / "heldout_q2000_r0.npz") as stored:
+        first = stored["mass"][0].astype(np.float64).sum(axis=0)
+    assert dem[0][0] == pytest.approx(first / (model.container.areal_density
+                                               * model.grid.dx))
+    flanks = np.array(written["flanks"])
+    assert written["summary"]["dem"][0]["flank_change_m"] == pytest.approx(
+        float((dem[0][-1] - dem[0][0])[flanks].mean()))
+    assert column_profile.main(["--data", str(DATA / "paper_heldout"), "--scene", "nope",
+                                "--out", str(tmp_path)]) == 2
