@@ -32,6 +32,12 @@ def test_cells_slower_than_the_share_of_the_outlet_speed_rest():
     assert np.array_equal(out[1, 2], field[1, 2])
     assert rest.at_rest(field, 0.0, container, 0.08) is field  # no discharge: as it is
     assert rest.at_rest(field, 2000.0, container, 0.0) is field  # off
+    from dataclasses import replace
+
+    point = replace(container, outlet_width=0.0)  # no outlet speed: off works, a share not
+    assert rest.at_rest(field, 2000.0, point, 0.0) is field
+    with pytest.raises(ValidationError, match="rest_fraction.*point outlet"):
+        rest.at_rest(field, 2000.0, point, 0.08)
 
 
 def test_the_share_is_fitted_on_the_training_design_by_youdens_index():

@@ -61,9 +61,12 @@ def at_rest(field: np.ndarray, discharge_rate: float, container,
             rest_fraction: float) -> np.ndarray:
     """``field`` (ny, nx, 2) [m/s] with the cells slower than ``rest_fraction``
     times the outlet speed set to 0 (module docstring)."""
-    threshold = rest_fraction * outlet_speed(discharge_rate, container)
-    if threshold <= 0.0:
+    if rest_fraction <= 0.0 or discharge_rate <= 0.0:
         return field
+    if container.outlet_width <= 0.0:
+        raise ValidationError("rest_fraction", "0 for a point outlet (outlet_width 0: no "
+                              "outlet speed to take a share of)", f"got {rest_fraction:g}")
+    threshold = rest_fraction * outlet_speed(discharge_rate, container)
     slow = np.hypot(field[..., 0], field[..., 1]) < threshold
     return np.where(slow[..., None], 0.0, field)
 
