@@ -313,34 +313,25 @@ def main(argv=None) -> int:
                                                   on_step=capture if keep_fields else None)
             add(f"ROM {surface} {label}", f"rom_{surface}", outflow, wall,
                 modes=[model.n_mass_modes, model.n_velocity_modes], surface=surface)
+    def add_dem(label, kind, run, **extra):
+        """A DEM run's point; one the guard stopped has no score: its cost until then."""
+        if not int(run.get("unstable", 0)):
+            add(label, kind, ev.outflow_of(run), float(run["wall_s"]), **extra)
+            return
+        reached = float(run["unstable_at"])
+        points.append({"label": f"{label}: unstable at {reached:.3g} s", "kind": kind, **extra,
+                       "unstable": True, "unstable_at_s": reached,
+                       "why": str(run["unstable_reason"]), "tracking_error": None,
+                       "wall_s_per_simulated_s": float(run["wall_s"]) / max(reached, 1e-9)})
+        progress(f"{label}: {points[-1]}")
+
     for factor in sorted({1.0, *DT_FACTORS} - {reference_factor}):
         run = ev.load_run(heldout / ("dem.npz" if factor == 1.0 else f"dem_dt{factor:g}.npz"))
-        label = f"DEM dt = {factor:g} stable_dt"
-        if int(run.get("unstable", 0)):
-            reached = float(run["unstable_at"])
-            points.append({"label": f"{label}: unstable at {reached:.3g} s", "kind": "dem",
-                           "dt_factor": factor, "unstable": True,
-                           "unstable_at_s": reached, "why": str(run["unstable_reason"]),
-                           "tracking_error": None,
-                           "wall_s_per_simulated_s": float(run["wall_s"]) / max(reached, 1e-9)})
-            progress(f"{label}: {points[-1]}")
-        else:
-            add(label, "dem", ev.outflow_of(run), float(run["wall_s"]), dt_factor=factor)
+        add_dem(f"DEM dt = {factor:g} stable_dt", "dem", run, dt_factor=factor)
     for name, changes in nonsmooth_runs():
-        run = ev.load_run(heldout / f"{name}.npz")
         setting = nonsmooth_label(changes)
-        label = f"nonsmooth DEM {setting}"
-        if int(run.get("unstable", 0)):
-            reached = float(run["unstable_at"])
-            points.append({"label": f"{label}: unstable at {reached:.3g} s",
-                           "kind": "dem_nonsmooth", "setting": setting, "solver": changes,
-                           "unstable": True, "unstable_at_s": reached,
-                           "why": str(run["unstable_reason"]), "tracking_error": None,
-                           "wall_s_per_simulated_s": float(run["wall_s"]) / max(reached, 1e-9)})
-            progress(f"{label}: {points[-1]}")
-        else:
-            add(label, "dem_nonsmooth", ev.outflow_of(run), float(run["wall_s"]),
-                setting=setting, solver=changes)
+        add_dem(f"nonsmooth DEM {setting}", "dem_nonsmooth",
+                ev.load_run(heldout / f"{name}.npz"), setting=setting, solver=changes)
     dem = ev.load_run(heldout / "dem.npz")
     floor = metrics.tracking_error(ev.outflow_of(ev.load_run(heldout / "dem_perturbed.npz")),
                                    ev.outflow_of(dem), t0, t1)
