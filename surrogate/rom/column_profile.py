@@ -58,7 +58,9 @@ def profile(data, scene: str, model=None, options: dict | None = None,
     """The ROM's and the DEM replicas' column fill on the held-out ``scene`` of the
     exported held-out design ``data``: ``{"x_m", "time_s", "rom", "dem": [...],
     "core", "flanks"}`` (``core``/``flanks``: boolean column masks)."""
+    from surrogate.dem import Dem
     from surrogate.rom import evaluate, heldout_layout
+    from surrogate.rom.grid import mass_field
     from surrogate.rom.model import RomModel
     from surrogate.rom.storage import DEFAULT_MODEL
 
@@ -74,19 +76,22 @@ def profile(data, scene: str, model=None, options: dict | None = None,
                     if (heldout / f"{name}.npz").is_file()]
         t0 = float(replicas[0]["t0"])
         times = np.asarray(replicas[0]["field_time"], dtype=np.float64) - t0
-        wanted = set(np.round(times).astype(int).tolist())
-        rom = {}
+        sample = {int(round(t)): i for i, t in enumerate(times)}  # whole seconds after t0
+        start = Dem.load_checkpoint(heldout / "initial.npz").snapshot()
+        # the ROM starts from the DEM's own start state
+        rom = {0: mass_field(model.grid, start["position"], start["mass"])}
 
-        def capture(k, time, storage):
-            if k in wanted:
-                rom[k] = storage.fields()["mass"]
+        def capture(k, time, storage):  # called after the step that ends at ``time``
+            at = int(round(time - t0))
+            if at in sample:
+                rom[sample[at]] = storage.fields()["mass"]
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             evaluate.run_storage("rom", heldout, model, seed=seed, options=options,
                                  on_step=capture)
     grid, density = model.grid, model.container.areal_density
-    steps = sorted(k for k in rom if k < times.size)
+    steps = sorted(rom)
     x = grid.x_min + grid.dx * (np.arange(grid.nx) + 0.5)
     dem = [column_fill(r["field_mass"][steps], grid, density) for r in replicas]
     distance = np.abs(x - model.container.outlet_x)
