@@ -63,6 +63,13 @@ def test_the_storage_rests_its_predicted_field_and_refuses_a_bad_share():
     for bad in (-0.1, 1.5, float("nan")):
         with pytest.raises(ValidationError, match="rest_fraction"):
             RomStorage(rest_fraction=bad)
+    from dataclasses import replace
+
+    model = RomModel.load(DEFAULT_MODEL)
+    model.container = replace(model.container, outlet_width=0.0)
+    with pytest.raises(ValidationError, match="rest_fraction.*point outlet"):
+        RomStorage(model, rest_fraction=0.08)  # at once, not at the first discharge
+    assert RomStorage(model).rest_fraction == 0.0
 
 
 def test_the_fit_refuses_a_folder_without_a_design_with_exit_2(tmp_path):

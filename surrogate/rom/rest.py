@@ -58,15 +58,20 @@ def outlet_speed(discharge_rate: float, container) -> float:
     return float(discharge_rate) / (container.areal_density * container.outlet_width)
 
 
+def check_share(rest_fraction: float, container) -> None:
+    """Refuse a share on a point outlet (``outlet_width`` 0: no outlet speed)."""
+    if rest_fraction > 0.0 and container.outlet_width <= 0.0:
+        raise ValidationError("rest_fraction", "0 for a point outlet (outlet_width 0: no "
+                              "outlet speed to take a share of)", f"got {rest_fraction:g}")
+
+
 def at_rest(field: np.ndarray, discharge_rate: float, container,
             rest_fraction: float) -> np.ndarray:
     """``field`` (ny, nx, 2) [m/s] with the cells slower than ``rest_fraction``
     times the outlet speed set to 0 (module docstring)."""
     if rest_fraction <= 0.0 or discharge_rate <= 0.0:
         return field
-    if container.outlet_width <= 0.0:
-        raise ValidationError("rest_fraction", "0 for a point outlet (outlet_width 0: no "
-                              "outlet speed to take a share of)", f"got {rest_fraction:g}")
+    check_share(rest_fraction, container)
     threshold = rest_fraction * outlet_speed(discharge_rate, container)
     slow = np.hypot(field[..., 0], field[..., 1]) < threshold
     return np.where(slow[..., None], 0.0, field)

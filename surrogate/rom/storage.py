@@ -180,7 +180,7 @@ from surrogate.rom.handover import drop_heights
 from surrogate.rom.kinematic import DIFFUSION_LENGTH, hybrid_field
 from surrogate.rom.kinematic import velocity_field as kinematic_field
 from surrogate.rom.model import OutOfTrainingRange, RomModel
-from surrogate.rom.rest import at_rest
+from surrogate.rom.rest import at_rest, check_share
 from surrogate.rom.surface import (column_width, deposit, feeder_take, settle,
                                    surface_heights)
 from surrogate.rom.surface_dem import SurfaceDem
@@ -347,6 +347,7 @@ class RomStorage(StorageModel):
         self.model = model
         self.container = (model.container if self.packing_density is None else
                           replace(model.container, areal_density=self.packing_density))
+        check_share(self.rest_fraction, self.container)  # here, not at a run's first discharge
         if self.surface == "dem":
             self.surface_dem = SurfaceDem(_dem_config(self.surface_config or model.dem_config),
                                           self.container, self.surface_dt_safety_factor,
