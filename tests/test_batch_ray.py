@@ -112,6 +112,11 @@ def test_a_dem_design_on_ray_with_a_killed_worker_equals_the_local_one(cluster, 
     _assert_same_arrays(_arrays(local / "states"), _arrays(remote / "states"))
 
 
+WORKER_CPU_S = 0.3
+"""CPU time [s] a child must have used to count as a pool worker under a run (a run of
+the sweep takes about 3 s)."""
+
+
 def _command_line(pid: int) -> bytes:
     try:
         return Path(f"/proc/{pid}/cmdline").read_bytes()
@@ -119,18 +124,28 @@ def _command_line(pid: int) -> bytes:
         return b""
 
 
+def _cpu_seconds(pid: int) -> float:
+    """User plus system CPU time [s] the process has used (0 once it has ended)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _pool_workers(pid: int) -> list[int]:
-    """The sweep's forked pool workers: children that run the sweep's own command line.
-    Other children come and go (a loaded run once killed ``ldconfig -p``, which
-    ``ctypes.util.find_library`` runs, instead of a worker); a child between fork and
-    exec still shows the parent's command line, so a candidate must keep it a while."""
+    """The sweep's forked pool workers that are running a run: children that run the
+    sweep's own command line and have used CPU time of their own. Other children come
+    and go (a loaded run once killed ``ldconfig -p``, which ``ctypes.util.find_library``
+    runs, instead of a worker); a child between fork and exec still shows the parent's
+    command line, and under a busy loop it may keep it for longer than any fixed wait,
+    but it has used next to no CPU time (a fork starts at 0): a worker under a run has."""
     children = Path(f"/proc/{pid}/task/{pid}/children")
     if not children.exists():
         return []
     own = _command_line(pid)
-    candidates = [int(c) for c in children.read_text().split() if _command_line(int(c)) == own]
-    time.sleep(0.1)
-    return [c for c in candidates if _command_line(c) == own]
+    return [c for c in (int(c) for c in children.read_text().split())
+            if _command_line(c) == own and _cpu_seconds(c) >= WORKER_CPU_S]
 
 
 def _sweep(out: Path, *options: str, wait_for_one: bool = False,
