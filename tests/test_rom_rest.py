@@ -43,7 +43,9 @@ def test_cells_slower_than_the_share_of_the_outlet_speed_rest():
 def test_the_share_is_fitted_on_the_training_design_by_youdens_index():
     model = RomModel.load(DEFAULT_MODEL)
     result = rest.fit(DATA / "paper_design", model)
-    assert result["best"] == rest.REST_FRACTION == 0.08
+    # what `rom train` fitted and the shipped file keeps
+    assert result["best"] == model.rest_fraction == 0.08
+    assert model.validation["rest"] == result
     assert result["youden"] == pytest.approx(
         [r - m for r, m in zip(result["rest_stopped"], result["moving_stopped"])])
     # a larger share stops more of both
@@ -52,14 +54,43 @@ def test_the_share_is_fitted_on_the_training_design_by_youdens_index():
     assert result["cells"]["resting"] > result["cells"]["moving"] > 1000
 
 
+def test_no_share_is_fitted_for_a_point_outlet_or_a_design_that_never_discharges():
+    from dataclasses import replace
+
+    from surrogate.rom import doe
+
+    model = RomModel.load(DEFAULT_MODEL)
+    samples = doe.load_samples(DATA / "paper_design")
+    idle = dict(samples, discharge_rate=np.zeros_like(samples["discharge_rate"]))
+    assert rest.fit_samples(idle, model)["best"] == 0.0
+    model.container = replace(model.container, outlet_width=0.0)
+    assert rest.fit_samples(samples, model)["best"] == 0.0
+
+
+def test_the_model_file_keeps_its_share_and_a_file_without_one_is_off(tmp_path):
+    model = RomModel.load(DEFAULT_MODEL)
+    model.rest_fraction = 0.05
+    assert RomModel.load(model.save(tmp_path / "share.npz")).rest_fraction == 0.05
+    model.rest_fraction = 0.0
+    path = model.save(tmp_path / "off.npz")
+    with np.load(path) as stored:
+        assert "rest_fraction" not in json.loads(str(stored["header"]))
+    assert RomModel.load(path).rest_fraction == 0.0
+
+
 def test_the_storage_rests_its_predicted_field_and_refuses_a_bad_share():
-    storage = RomStorage(rest_fraction=0.08)
+    storage = RomStorage()  # the model file's share
+    assert storage.rest_fraction == storage.model.rest_fraction == 0.08
     mass = np.zeros(storage.model.grid.shape)
     mass[:10, 30:50] = storage.model.full_cell_mass
     plain = storage.model.predict(mass, 2000.0, 2000.0, check=False)
     assert np.array_equal(storage.predicted_field(mass, 2000.0, 2000.0),
                           rest.at_rest(plain, 2000.0, storage.container, 0.08))
-    assert np.array_equal(RomStorage().predicted_field(mass, 2000.0, 2000.0), plain)
+    assert not np.array_equal(storage.predicted_field(mass, 2000.0, 2000.0), plain)
+    assert np.array_equal(RomStorage(rest_fraction=0.0).predicted_field(mass, 2000.0, 2000.0),
+                          plain)  # off
+    assert np.array_equal(RomStorage(rest_fraction=0.2).predicted_field(mass, 2000.0, 2000.0),
+                          rest.at_rest(plain, 2000.0, storage.container, 0.2))
     for bad in (-0.1, 1.5, float("nan")):
         with pytest.raises(ValidationError, match="rest_fraction"):
             RomStorage(rest_fraction=bad)
@@ -68,7 +99,11 @@ def test_the_storage_rests_its_predicted_field_and_refuses_a_bad_share():
     model = RomModel.load(DEFAULT_MODEL)
     model.container = replace(model.container, outlet_width=0.0)
     with pytest.raises(ValidationError, match="rest_fraction.*point outlet"):
-        RomStorage(model, rest_fraction=0.08)  # at once, not at the first discharge
+        RomStorage(model)  # the file's share, at once, not at the first discharge
+    with pytest.raises(ValidationError, match="rest_fraction.*point outlet"):
+        RomStorage(model, rest_fraction=0.08)
+    assert RomStorage(model, rest_fraction=0.0).rest_fraction == 0.0
+    model.rest_fraction = 0.0  # as `rom train` fits it for a point outlet
     assert RomStorage(model).rest_fraction == 0.0
 
 

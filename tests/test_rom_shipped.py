@@ -57,6 +57,7 @@ def test_a_reduced_regeneration_predicts_what_the_shipped_model_predicts(shipped
     for name, (low, high) in shipped.ranges.items():
         assert again.ranges[name] == pytest.approx([low, high], rel=1e-9, abs=1e-12), name
     assert again.dispersivity == pytest.approx(shipped.dispersivity, rel=1e-9)
+    assert again.rest_fraction == shipped.rest_fraction > 0.0
     assert again.container.to_dict() == shipped.container.to_dict()
     samples = doe.load_samples(data)
     rows = np.linspace(0, samples["time"].size - 1, 40).astype(int)

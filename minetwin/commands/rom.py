@@ -20,6 +20,10 @@ def register(subparsers) -> None:
     train.add_argument("--data", required=True, help="DOE directory (train/*.npz, doe.json)")
     train.add_argument("--out", required=True, help="model file to write (.npz)")
     _model_options(train)
+    train.add_argument("--rest-fraction", type=float, default=None, metavar="SHARE",
+                       help="share of the feeder's mean outlet speed below which a cell of "
+                            "the ROM's field rests, kept in the model file (default: fitted "
+                            "on the design by Youden's index, surrogate.rom.rest; 0: off)")
     train.set_defaults(handler=run_train)
     evaluate = sub.add_parser(
         "evaluate", help="score a ROM on the held-out DEM scenario; writes summary.json",
@@ -63,9 +67,9 @@ def register(subparsers) -> None:
                                "python -m surrogate.rom.packing --data DIR)")
     evaluate.add_argument("--rest-fraction", type=float, default=None, metavar="SHARE",
                           help="share of the feeder's mean outlet speed below which a cell "
-                               "of the ROM's field rests (RomStorage's rest_fraction; default "
-                               "0: off; fitted on a design: python -m surrogate.rom.rest "
-                               "--data DIR, 0.08 on the paper design)")
+                               "of the ROM's field rests (RomStorage's rest_fraction; default: "
+                               "the model file's, fitted at rom train, 0.08 for the shipped "
+                               "paper-scale ROM; 0: off)")
     _model_options(evaluate)
     evaluate.set_defaults(handler=run_evaluate)
     design = sub.add_parser(
@@ -147,10 +151,10 @@ def run_train(args) -> int:
 
     model = train(args.data, args.out, args.mass_modes, args.velocity_modes, args.ridge,
                   progress=_progress, target=args.target, flux_floor=args.flux_floor,
-                  fill_law=args.fill_law)
+                  fill_law=args.fill_law, rest_fraction=args.rest_fraction)
     print(f"trained on {model.n_samples} samples, grid {model.grid.nx}x{model.grid.ny}, "
-          f"modes {model.n_mass_modes}/{model.n_velocity_modes}, ridge {model.ridge:g}; "
-          f"wrote {args.out}")
+          f"modes {model.n_mass_modes}/{model.n_velocity_modes}, ridge {model.ridge:g}, "
+          f"resting share {model.rest_fraction:g}; wrote {args.out}")
     return 0
 
 

@@ -38,9 +38,10 @@ from pathlib import Path
 import numpy as np
 
 from cosim import batch
+from cosim.errors import check_finite_range
 from cosim.particles import ParticleStore
 from cosim.storage import make_storage
-from surrogate.rom import doe, metrics
+from surrogate.rom import doe, metrics, rest
 from surrogate.rom.dispersion import dispersivity
 from surrogate.rom.grid import Grid, mean_field
 from surrogate.rom.model import (FLUX_FLOOR, FLUX_FLOORS, RomModel, flux_samples, pod_basis,
@@ -489,13 +490,17 @@ def rom_numerical_dispersivity(model: RomModel, directory, samples: dict,
 def train(directory, out=None, n_mass_modes: int | None = None,
           n_velocity_modes: int | None = None, ridge: float | None = None,
           progress=None, target: str = "velocity",
-          flux_floor: float | None = None, fill_law: str | None = None) -> RomModel:
+          flux_floor: float | None = None, fill_law: str | None = None,
+          rest_fraction: float | None = None) -> RomModel:
     """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it).
 
     ``target`` (default "velocity"): the field the regression fits (``RomModel``);
     with "flux" the ``flux_floor`` left ``None`` is chosen among ``FLUX_FLOORS``
     with the other options; ``fill_law`` (default None; "dem" with "flux" only):
     ``RomModel``'s fitted fill, fitted in each fold of the selection too.
+    ``rest_fraction`` (default None: fitted, ``surrogate.rom.rest.fit_samples``,
+    its Youden table in the model's ``validation["rest"]``; 0: off): the resting
+    bulk's share the model file keeps.
 
     Options left ``None`` are chosen among ``MODEL_CANDIDATES`` by the
     smallest leave-one-run-out velocity error (recorded in the model's
@@ -554,6 +559,19 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         _say(progress, f"bulk dispersivity {measured:.4f} m measured on the DEM runs, "
                        + ("" if own is None else f"{own:.4f} m shown by the ROM without its "
                           "random walk, ") + f"{model.dispersivity:.4f} m applied")
+    if rest_fraction is None:
+        fitted = rest.fit_samples(samples, model)
+        model.rest_fraction = fitted["best"]
+        model.validation["rest"] = fitted
+        _say(progress, "resting bulk: " + (
+            f"cells slower than {model.rest_fraction:g} of the feeder's mean outlet speed "
+            f"rest (Youden's index {max(fitted['youden']):.3f})" if model.rest_fraction
+            else "off (a point outlet, no discharging sample or no share that tells "
+                 "resting from moving cells)"))
+    else:
+        rest_fraction = float(check_finite_range("rest_fraction", rest_fraction, 0.0, 1.0))
+        rest.check_share(rest_fraction, container)
+        model.rest_fraction = rest_fraction
     if out is not None:
         options = {"mass_modes": n_mass_modes, "velocity_modes": n_velocity_modes,
                    "ridge": ridge}
@@ -561,6 +579,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
             options.update(target=target, flux_floor=flux_floor)
         if fill_law is not None:
             options.update(fill_law=fill_law)
+        if rest_fraction is not None:
+            options.update(rest_fraction=rest_fraction)
         model.provenance = training_provenance(directory, out, options)
         model.save(out)
     return model

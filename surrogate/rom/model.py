@@ -251,7 +251,10 @@ class RomModel:
 
     ``dispersivity`` [m] (default 0: none) is the bulk's dispersion about the
     mean flow measured on the training DEM (``surrogate.rom.dispersion``);
-    ``minetwin rom train`` sets it and the file keeps it, as it keeps the
+    ``rest_fraction`` [-] (default 0: off) the share of the feeder's mean outlet
+    speed below which a cell of the predicted field rests, fitted on the
+    training DEM (``surrogate.rom.rest``; ``RomStorage``'s default).
+    ``minetwin rom train`` sets both and the file keeps them, as it keeps the
     ``provenance`` (``surrogate.rom.provenance``: data, design, seeds, code
     version, the command that regenerates the file).
     """
@@ -286,6 +289,7 @@ class RomModel:
         self.flux_floor = float(flux_floor)
         self.fill_law = fill_law
         self.dispersivity = 0.0
+        self.rest_fraction = 0.0
         self.arrays: dict[str, np.ndarray] = {}
         self.ranges: dict[str, list[float]] = {}
         self.n_samples = 0
@@ -483,8 +487,11 @@ class RomModel:
     def header(self) -> dict:
         """The file's JSON header; ``target`` and ``flux_floor`` are written for a flux
         fit only (a file without them is a velocity fit, as every file before them),
-        ``fill_law`` only when set."""
+        ``fill_law`` and ``rest_fraction`` only when set (a file without
+        ``rest_fraction`` has the resting bulk off, as every file before it)."""
         header = self._header()
+        if self.rest_fraction > 0.0:
+            header.update(rest_fraction=self.rest_fraction)
         if self.target != "velocity":
             header.update(target=self.target, flux_floor=self.flux_floor)
         if self.fill_law is not None:
@@ -539,5 +546,6 @@ class RomModel:
         model.n_samples = int(header["n_samples"])
         model.validation = header.get("validation", {})
         model.dispersivity = float(header.get("dispersivity", 0.0))
+        model.rest_fraction = float(header.get("rest_fraction", 0.0))
         model.provenance = header.get("provenance", {})
         return model

@@ -17,37 +17,37 @@ Rule (``at_rest``): a cell whose predicted speed |v| [m/s] is below
 discharge nothing changes. The transport's projection then makes the moving
 cells carry the feeder's flux.
 
-The share is chosen on a training design (``fit``; thresholds had been scored
-on the held-out scenes before, ``surrogate/rom/README.md``, "The resting bulk"):
-every discharging sample's bulk cells (at least ``transport.FILL`` of a full
-cell) are classified by the DEM's own speed, at rest below ``DEM_REST_SPEED``
-and moving above ``DEM_MOVING_SPEED``, and the share maximises Youden's index
-(Youden 1950, "Index for rating diagnostic tests", Cancer 3:32-35): the
-fraction of the resting cells the rule stops less the fraction of the moving
-cells it stops. On the paper design (``python -m surrogate.rom.rest --data
-surrogate/rom/data/paper_design``): 0.08 (``REST_FRACTION``).
+The share is fitted with the model (``minetwin rom train``; ``fit``) and kept in
+the model file (``RomModel.rest_fraction``; the storage's default): every
+discharging training sample's bulk cells (at least ``transport.FILL`` of a
+full cell) are classified by the DEM's own speed, at rest below
+``DEM_REST_SPEED`` and moving above ``DEM_MOVING_SPEED``, and the share
+maximises Youden's index (Youden 1950, "Index for rating diagnostic tests",
+Cancer 3:32-35): the fraction of the resting cells the rule stops less the
+fraction of the moving cells it stops. A model of a point outlet (no outlet
+speed) gets 0: off. On the paper design (``python -m surrogate.rom.rest --data
+surrogate/rom/data/paper_design``): 0.08. Thresholds had been scored on the
+held-out scenes before the fit was written (``surrogate/rom/README.md``, "The
+resting bulk").
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
 from cosim.errors import ValidationError
-
-REST_FRACTION = 0.08
-"""Share [-] of the feeder's mean outlet speed below which a cell rests, fitted on
-the paper-scale training design (module docstring)."""
 
 DEM_REST_SPEED = 0.01
 """A DEM cell slower than this [m/s] is at rest (``fit``)."""
 
 DEM_MOVING_SPEED = 0.05
 """A DEM cell faster than this [m/s] moves (``fit``)."""
+
+MIN_DISCHARGE = 100.0
+"""Discharge rate [kg/s] a training sample needs for ``fit`` to score it."""
 
 FRACTIONS = (0.02, 0.04, 0.06, 0.08, 0.1, 0.12, 0.15, 0.2)
 """Shares [-] ``fit`` scores."""
@@ -77,48 +77,50 @@ def at_rest(field: np.ndarray, discharge_rate: float, container,
     return np.where(slow[..., None], 0.0, field)
 
 
-def fit(data, model, fractions=FRACTIONS, min_discharge: float = 100.0) -> dict:
+def fit(data, model, fractions=FRACTIONS, min_discharge: float = MIN_DISCHARGE) -> dict:
+    """``fit_samples`` on the training samples of the design folder ``data``
+    (``doe.load_samples``: discharge rates smoothed as the model was fitted)."""
+    from surrogate.rom import doe
+
+    return fit_samples(doe.load_samples(data), model, fractions, min_discharge)
+
+
+def fit_samples(samples: dict, model, fractions=FRACTIONS,
+                min_discharge: float = MIN_DISCHARGE) -> dict:
     """Youden's index of ``at_rest`` for each share in ``fractions`` on the
-    training design ``data`` (an exported design folder), the model's prediction
-    at every sample discharging at least ``min_discharge`` [kg/s]. Returns
-    ``{"fractions", "rest_stopped", "moving_stopped", "youden", "best", "cells"}``."""
+    training ``samples`` (``doe.load_samples``), the model's prediction at every
+    sample discharging at least ``min_discharge`` [kg/s]. Returns
+    ``{"fractions", "rest_stopped", "moving_stopped", "youden", "best", "cells"}``;
+    with no discharging sample, a point outlet or no share with a positive index
+    ``best`` is 0 (off)."""
     from surrogate.rom.transport import FILL
 
-    data = Path(data)
-    manifest = data / "manifest.json"
-    if not manifest.is_file():
-        raise ValidationError("--data", "an exported design folder with manifest.json",
-                              f"{data} has none")
     container = model.container
+    fractions = [float(f) for f in fractions]
+    discharging = np.flatnonzero(samples["discharge_rate"] >= min_discharge)
+    if container.outlet_width <= 0.0 or discharging.size == 0:
+        return {"fractions": fractions, "rest_stopped": [], "moving_stopped": [],
+                "youden": [], "best": 0.0, "cells": {"resting": 0, "moving": 0}}
     full = model.full_cell_mass
     resting, moving = [], []
-    for record in json.loads(manifest.read_text())["runs"]:
-        with np.load(data / "train" / f"{record['name']}.npz") as stored:
-            mass = np.asarray(stored["mass"], dtype=np.float64)
-            velocity = np.asarray(stored["velocity"], dtype=np.float64)
-            rates = np.asarray(stored["discharge_rate"], dtype=np.float64)
-            inflows = np.asarray(stored["inflow_rate"], dtype=np.float64)
-        for cells, dem, rate, inflow in zip(mass, velocity, rates, inflows):
-            if rate < min_discharge:
-                continue
-            predicted = model.predict(cells, rate, inflow, check=False)
-            share = np.hypot(predicted[..., 0], predicted[..., 1]) / outlet_speed(rate,
-                                                                                  container)
-            speed = np.hypot(dem[..., 0], dem[..., 1])
-            bulk = cells >= FILL * full
-            resting.append(share[bulk & (speed < DEM_REST_SPEED)])
-            moving.append(share[bulk & (speed > DEM_MOVING_SPEED)])
-    if not resting:
-        raise ValidationError("--data", f"runs discharging at least {min_discharge:g} kg/s",
-                              f"{data} has none")
+    for k in discharging:
+        cells = np.asarray(samples["mass"][k], dtype=np.float64)
+        dem = np.asarray(samples["velocity"][k], dtype=np.float64)
+        rate = float(samples["discharge_rate"][k])
+        predicted = model.predict(cells, rate, float(samples["inflow_rate"][k]), check=False)
+        share = np.hypot(predicted[..., 0], predicted[..., 1]) / outlet_speed(rate, container)
+        speed = np.hypot(dem[..., 0], dem[..., 1])
+        bulk = cells >= FILL * full
+        resting.append(share[bulk & (speed < DEM_REST_SPEED)])
+        moving.append(share[bulk & (speed > DEM_MOVING_SPEED)])
     resting, moving = np.concatenate(resting), np.concatenate(moving)
-    fractions = [float(f) for f in fractions]
-    rest_stopped = [float(np.mean(resting < f)) for f in fractions]
-    moving_stopped = [float(np.mean(moving < f)) for f in fractions]
+    rest_stopped = [float(np.mean(resting < f)) if resting.size else 0.0 for f in fractions]
+    moving_stopped = [float(np.mean(moving < f)) if moving.size else 0.0 for f in fractions]
     youden = [r - m for r, m in zip(rest_stopped, moving_stopped)]
     return {"fractions": fractions, "rest_stopped": rest_stopped,
             "moving_stopped": moving_stopped, "youden": youden,
-            "best": fractions[int(np.argmax(youden))],
+            # a share that stops no more resting than moving cells is no rule: off
+            "best": fractions[int(np.argmax(youden))] if max(youden) > 0.0 else 0.0,
             "cells": {"resting": int(resting.size), "moving": int(moving.size)}}
 
 

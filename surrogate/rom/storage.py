@@ -151,13 +151,14 @@ packing_density : float, optional
     density on a training design: ``surrogate.rom.packing.settled_density``
     (paper design: 564.2 kg/m^2, 0.908 of 621.1; surrogate/rom/README.md,
     "Packing at the DEM's mean settled density").
-rest_fraction : float
+rest_fraction : float or None
     Share [-] of the feeder's mean outlet speed q_out / (rho_A W) below which
     a cell of the predicted field is at rest (its velocity 0) before the
-    transport (``surrogate.rom.rest``; default 0: off). The share fitted on
-    the paper-scale training design is ``surrogate.rom.rest.REST_FRACTION``
-    (0.08). On the paper-scale held-out scenes: surrogate/rom/README.md,
-    "The resting bulk".
+    transport (``surrogate.rom.rest``; default None: the model file's
+    ``rest_fraction``, fitted at ``minetwin rom train``, 0.08 for the shipped
+    paper-scale ROM and 0, off, for a model of a point outlet; 0 turns it off).
+    On the paper-scale held-out scenes: surrogate/rom/README.md, "The resting
+    bulk".
 """
 
 from __future__ import annotations
@@ -273,10 +274,12 @@ class RomStorage(StorageModel):
                  transport: str = "balanced", packing: str = "avalanche", fill: float = FILL,
                  relax: float = 1.0, velocity_model: str = "regressed",
                  diffusion_length: float = DIFFUSION_LENGTH,
-                 packing_density: float | None = None, rest_fraction: float = 0.0):
+                 packing_density: float | None = None,
+                 rest_fraction: float | None = None):
         super().__init__(rng=rng)
-        self.rest_fraction = float(check_finite_range("rest_fraction", rest_fraction, 0.0,
-                                                      1.0))
+        self.rest_option = (None if rest_fraction is None else float(check_finite_range(
+            "rest_fraction", rest_fraction, 0.0, 1.0)))
+        self.rest_fraction = 0.0  # the share in use: the option's, else the model's
         self.packing_density = (None if packing_density is None else float(check_finite_range(
             "packing_density", packing_density, 0.0, low_open=True, unit="kg/m^2")))
         if velocity_model not in VELOCITY_MODELS:
@@ -347,6 +350,8 @@ class RomStorage(StorageModel):
         self.model = model
         self.container = (model.container if self.packing_density is None else
                           replace(model.container, areal_density=self.packing_density))
+        self.rest_fraction = (model.rest_fraction if self.rest_option is None
+                              else self.rest_option)
         check_share(self.rest_fraction, self.container)  # here, not at a run's first discharge
         if self.surface == "dem":
             self.surface_dem = SurfaceDem(_dem_config(self.surface_config or model.dem_config),
