@@ -157,14 +157,16 @@ def main(argv=None) -> int:
     parser.add_argument("--model", default=None, help="ROM model file (default: the shipped one)")
     parser.add_argument("--velocity-model", choices=("regressed", "kinematic", "hybrid"),
                         default="regressed", help="RomStorage's velocity_model (regressed)")
-    parser.add_argument("--rest-fraction", type=float, default=0.0,
-                        help="RomStorage's rest_fraction (0: off; surrogate.rom.rest)")
+    parser.add_argument("--rest-fraction", type=float, default=None,
+                        help="RomStorage's rest_fraction (default: the model file's; 0: off; "
+                             "surrogate.rom.rest)")
     parser.add_argument("--seed", type=int, default=0, help="ROM seed (0)")
     args = parser.parse_args(argv)
     try:
         result = profile(args.data, args.scene, args.model,
                          {"velocity_model": args.velocity_model,
-                          "rest_fraction": args.rest_fraction}, args.seed)
+                          **({} if args.rest_fraction is None
+                             else {"rest_fraction": args.rest_fraction})}, args.seed)
     except (ValidationError, OSError) as error:
         print(f"column_profile: error: {error}", file=sys.stderr)
         return 2

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -135,6 +136,9 @@ def main(argv=None) -> int:
     from surrogate.rom.storage import DEFAULT_MODEL
 
     try:
+        if not sorted(Path(args.data, "train").glob("*.npz")):
+            raise ValidationError("--data", "a design folder with train/*.npz sample files",
+                                  f"none under {args.data}")
         result = fit(args.data, RomModel.load(args.model or DEFAULT_MODEL))
     except (ValidationError, OSError) as error:
         print(f"rest: error: {error}", file=sys.stderr)
