@@ -133,5 +133,33 @@ def test_the_column_profile_compares_the_rom_with_every_replica(tmp_path):
     flanks = np.array(written["flanks"])
     assert written["summary"]["dem"][0]["flank_change_m"] == pytest.approx(
         float((dem[0][-1] - dem[0][0])[flanks].mean()))
+    passing = written["row_flux"]
+    assert passing["regions"] == ["core", "funnel edge", "flanks"]
+    assert np.array(passing["dem"]).shape == np.array(passing["predicted"]).shape == (
+        len(column_profile.ROW_FLUX_HEIGHTS), 3)
+    assert np.array(written["rom_flux"]).shape == (len(column_profile.ROW_FLUX_HEIGHTS), 3)
+    assert len(written["rom_edge_flux"]) == len(passing["edge_dem"]) == model.grid.ny
     assert column_profile.main(["--data", str(DATA / "paper_heldout"), "--scene", "nope",
                                 "--out", str(tmp_path)]) == 2
+
+
+def test_the_flux_through_lines_and_into_the_funnel_is_mass_times_speed():
+    """``column_profile.line_flux`` and ``edge_flux`` on full cells moving uniformly:
+    a line carries (columns) dx w downward, the funnel's edge 2 dy c per row."""
+    model = RomModel.load(DEFAULT_MODEL)
+    grid, density = model.grid, model.container.areal_density
+    full = np.full(grid.shape, density * grid.dx * grid.dy)
+    x = grid.x_min + grid.dx * (np.arange(grid.nx) + 0.5)
+    masks = list(column_profile.regions(x, model.container.outlet_x).values())
+    down = np.zeros(grid.shape + (2,))
+    down[..., 1] = -0.2
+    lines = column_profile.flux_lines(grid, (4.0, 10.0))
+    flux = column_profile.line_flux(full, down, grid, density, lines, masks)
+    assert flux == pytest.approx(np.array([[m.sum() * grid.dx * 0.2 for m in masks]] * 2),
+                                 rel=1e-12)
+    towards = np.zeros(grid.shape + (2,))
+    towards[..., 0] = np.where(x < model.container.outlet_x, 0.05, -0.05)[None, :]
+    edge = column_profile.edge_flux(full, towards, grid, density, model.container.outlet_x)
+    assert edge == pytest.approx(np.full(grid.ny, 2 * grid.dy * 0.05), rel=1e-12)
+    with pytest.raises(ValidationError, match="heights"):
+        column_profile.flux_lines(grid, (-1.0,))
