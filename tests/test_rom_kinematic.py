@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cosim.errors import ValidationError
-from surrogate.rom import kinematic
+from surrogate.rom import kinematic, rest
 from surrogate.rom.container import Container
 from surrogate.rom.grid import Grid
 from surrogate.rom.storage import RomStorage
@@ -81,9 +81,13 @@ def test_the_storage_moves_its_bulk_by_the_kinematic_field_on_request():
     assert RomStorage().velocity_model == "regressed"
     storage = RomStorage(velocity_model="kinematic", diffusion_length=0.9)
     mass = np.zeros(storage.model.grid.shape)
+    field = kinematic.velocity_field(storage.model.grid, storage.container, 1200.0, 0.9)
+    # the model file's resting bulk applies to every velocity model; off, the field as it is
+    assert storage.rest_fraction == storage.model.rest_fraction > 0.0
     assert np.array_equal(storage.predicted_field(mass, 1200.0, 0.0),
-                          kinematic.velocity_field(storage.model.grid, storage.container,
-                                                   1200.0, 0.9))
+                          rest.at_rest(field, 1200.0, storage.container, storage.rest_fraction))
+    off = RomStorage(velocity_model="kinematic", diffusion_length=0.9, rest_fraction=0.0)
+    assert np.array_equal(off.predicted_field(mass, 1200.0, 0.0), field)
 
 
 def test_the_hybrid_takes_the_faster_downward_speed_above_the_feeder_zone_only():
@@ -115,4 +119,5 @@ def test_the_storage_moves_its_bulk_by_the_hybrid_field_on_request():
     expected = kinematic.hybrid_field(
         storage.model.predict(mass, 1200.0, 600.0, check=False),
         kinematic.velocity_field(grid, container, 1200.0, 0.9), grid, container)
-    assert np.array_equal(storage.predicted_field(mass, 1200.0, 600.0), expected)
+    assert np.array_equal(storage.predicted_field(mass, 1200.0, 600.0),
+                          rest.at_rest(expected, 1200.0, container, storage.rest_fraction))
