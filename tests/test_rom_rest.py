@@ -149,7 +149,7 @@ def test_the_flux_through_lines_and_into_the_funnel_is_mass_times_speed():
     model = RomModel.load(DEFAULT_MODEL)
     grid, density = model.grid, model.container.areal_density
     full = np.full(grid.shape, density * grid.dx * grid.dy)
-    x = grid.x_min + grid.dx * (np.arange(grid.nx) + 0.5)
+    x = grid.centres()[0]
     masks = list(column_profile.regions(x, model.container.outlet_x).values())
     down = np.zeros(grid.shape + (2,))
     down[..., 1] = -0.2

@@ -7,14 +7,15 @@ DEM replica (its compact fields). In funnel flow the flanks of the pile rest and
 the feeder draws through the core, which the inflow refills; a model that draws
 the flanks down instead sends the inflow out late.
 
-Where the flow passes (``row_flux``): the downward volume flux [m^2/s] through
-horizontal lines of the grid, summed over the core, the funnel's edge (between
-the core and the flanks) and the flanks, on replica 0's states: the DEM's own
-(cell mass times velocity over rho_A dy, the mean of the two cells beside the
-line), the ROM's field before the transport at the DEM's mass (the same with
-its velocity) and after the balanced projection (the face velocities times dx,
-exact). The feeder's outflow q_out / rho_A is what passes a line the bulk fills
-from wall to wall.
+Where the flow passes (``row_flux``, ``line_flux``, ``edge_flux``): the downward
+volume flux [m^2/s] through horizontal lines of the grid, summed over the core,
+the funnel's edge (between the core and the flanks) and the flanks, and the
+horizontal flux into the funnel through the vertical lines ``FLANKS[0]`` either
+side of the feeder (cell mass times velocity over rho_A times the cell size,
+the mean of the two cells beside the line): the DEM's own on replica 0's
+states, the ROM's field before the transport at the DEM's mass, and the ROM's
+own run at its transported field on the same seconds. The feeder's outflow
+q_out / rho_A is what passes a line the bulk fills from wall to wall.
 
 A column's fill [m] is its mass over rho_A dx (``Container.areal_density`` of the
 model, the density a full ROM cell holds), i.e. the height the column would have
@@ -93,8 +94,9 @@ def profile(data, scene: str, model=None, options: dict | None = None,
         # the ROM starts from the DEM's own start state
         rom = {0: mass_field(model.grid, start["position"], start["mass"])}
         lines = flux_lines(model.grid, ROW_FLUX_HEIGHTS)
-        x = model.grid.x_min + model.grid.dx * (np.arange(model.grid.nx) + 0.5)
-        masks = list(regions(x, model.container.outlet_x).values())
+        x = model.grid.centres()[0]
+        columns = regions(x, model.container.outlet_x)
+        masks = list(columns.values())
         rom_flux, rom_edge = [], []  # on the states row_flux takes of the DEM's
 
         def capture(k, time, storage):  # called after the step that ends at ``time``
@@ -116,11 +118,9 @@ def profile(data, scene: str, model=None, options: dict | None = None,
     grid, density = model.grid, model.container.areal_density
     steps = sorted(rom)
     dem = [column_fill(r["field_mass"][steps], grid, density) for r in replicas]
-    distance = np.abs(x - model.container.outlet_x)
     return {"scene": scene, "x_m": x, "time_s": times[steps],
             "rom": column_fill(np.array([rom[k] for k in steps]), grid, density),
-            "dem": dem, "core": distance <= CORE_HALF_WIDTH,
-            "flanks": (distance >= FLANKS[0]) & (distance <= FLANKS[1]),
+            "dem": dem, "core": columns["core"], "flanks": columns["flanks"],
             "rom_flux": np.mean(rom_flux, axis=0), "rom_edge_flux": np.mean(rom_edge, axis=0)}
 
 
@@ -186,9 +186,9 @@ def row_flux(data, scene: str, model=None, options: dict | None = None,
     storage = RomStorage(model, **(options or {}))
     grid, density = storage.model.grid, storage.container.areal_density
     lines = flux_lines(grid, heights)
-    x = grid.x_min + grid.dx * (np.arange(grid.nx) + 0.5)
-    masks = list(regions(x, storage.container.outlet_x).values())
     outlet_x = storage.container.outlet_x
+    columns = regions(grid.centres()[0], outlet_x)
+    masks = list(columns.values())
     dem, predicted, dem_edge, predicted_edge = [], [], [], []
     with np.load(path) as run:
         for k in range(0, run["time"].size, every):
@@ -201,7 +201,7 @@ def row_flux(data, scene: str, model=None, options: dict | None = None,
             predicted_edge.append(edge_flux(mass, field, grid, density, outlet_x))
         outflow = float(np.mean(run["discharge_rate"][::every])) / density
     return {"heights_m": [grid.y_min + j * grid.dy for j in lines],
-            "regions": list(regions(x, 0.0)), "outflow_m2_s": outflow,
+            "regions": list(columns), "outflow_m2_s": outflow,
             "dem": np.mean(dem, axis=0).tolist(), "predicted": np.mean(predicted, axis=0).tolist(),
             "edge_dem": np.mean(dem_edge, axis=0).tolist(),
             "edge_predicted": np.mean(predicted_edge, axis=0).tolist()}
