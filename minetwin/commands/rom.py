@@ -70,6 +70,10 @@ def register(subparsers) -> None:
                                "of the ROM's field rests (RomStorage's rest_fraction; default: "
                                "the model file's, fitted at rom train, 0.08 for the shipped "
                                "paper-scale ROM; 0: off)")
+    evaluate.add_argument("--rom-seeds", type=int, default=1, metavar="N",
+                          help="run the ROM with seeds 0 .. N-1 on every scene and score "
+                               "the mean over them and the DEM replicas (default 1: seed 0; "
+                               "1-100; its surface layer and feeder draw random numbers)")
     _model_options(evaluate)
     evaluate.set_defaults(handler=run_evaluate)
     design = sub.add_parser(
@@ -163,9 +167,11 @@ def run_evaluate(args) -> int:
 
     from cosim.errors import ValidationError
     from surrogate.rom import heldout_layout
-    from surrogate.rom.evaluate import build_data, evaluate, train, write_summary
+    from surrogate.rom.evaluate import (build_data, check_rom_seeds, evaluate, train,
+                                        write_summary)
     from surrogate.rom.model import RomModel
 
+    check_rom_seeds(args.rom_seeds)  # before a design is built or laid out
     if args.quick:
         if not args.out:
             raise ValidationError("--out", "a directory when --quick is given")
@@ -196,7 +202,7 @@ def run_evaluate(args) -> int:
                                            for k in ("transport", "packing", "velocity_model",
                                                      "packing_density", "rest_fraction")
                                            if getattr(args, k) is not None}},
-                           executor=executor)
+                           executor=executor, rom_seeds=args.rom_seeds)
     # the file scored, so that `fidelity calibrate` ties the ROM card to it
     model_file = Path(args.model) if args.model else data / "rom_model.npz"
     summary["model_sha256"] = hashlib.sha256(model_file.read_bytes()).hexdigest()
@@ -207,8 +213,10 @@ def run_evaluate(args) -> int:
                                      "wall_s_per_simulated_s",
                                      "speedup_vs_dem", "grade_error", "hardness_error",
                                      "feed_prediction_error", "targets")}
+    shown["rom_seeds"] = summary["rom_seeds"]
     shown["scenarios"] = {name: {k: s[k] for k in ("tracking_error",
                                                     "tracking_error_spread", "dem_replicas",
+                                                    "rom_tracking_error_by_seed",
                                                     "tracking_error_dem_noise_floor",
                                                     "velocity_field_rel_error",
                                                     "velocity_field_rel_error_dem_noise_floor",
