@@ -18,8 +18,8 @@ per-window outflow compositions by tracking id, issue 10) is split three ways:
 
 Each is given for the ROM (``evaluate.run_storage``, the model and storage
 options given) against every DEM replica (their mean) and between the replicas,
-every pair once (the floor), as ``evaluate.ensemble_score`` and
-``evaluate.noise_floor`` score the full error.
+every pair once (the floor); both errors are scored by ``evaluate.ensemble_score``
+and ``evaluate.noise_floor``, the lumped one on the lumped outflows.
 
 Run::
 
@@ -78,18 +78,15 @@ def inflow_lots(outflow: dict, order: dict, t0: float, t1: float) -> list:
     inflow = np.array([int(i) in order for i in ids], dtype=bool)
     rank = np.array([order[int(i)] for i in ids[inflow]], dtype=np.int64)
     by_rank = np.argsort(rank, kind="stable")
+    ranked = rank[by_rank]
     rows = []
     for window in matrix[:, inflow][:, by_rank]:
         if window.sum() <= 0:
             rows.append(None)
             continue
         cumulative = np.cumsum(window) / window.sum()
-        rows.append([int(rank[by_rank][np.searchsorted(cumulative, q)]) for q in QUANTILES])
+        rows.append([int(ranked[np.searchsorted(cumulative, q)]) for q in QUANTILES])
     return rows
-
-
-def _pairs(count: int):
-    return [(i, j) for i in range(count) for j in range(i + 1, count)]
 
 
 def split_scene(model, heldout: Path, options: dict | None = None, seed: int = 0) -> dict:
@@ -109,18 +106,13 @@ def split_scene(model, heldout: Path, options: dict | None = None, seed: int = 0
         warnings.simplefilter("ignore")
         rom, _, _ = evaluate.run_storage("rom", heldout, model, seed=seed, options=options)
 
-    def error(a, b, lump):
-        if lump:
-            a, b = lumped(a, inflow_ids), lumped(b, inflow_ids)
-        return metrics.tracking_error(a, b, t0, t1)
-
-    pairs = _pairs(len(references))
     result = {"replicas": len(references), "window_s": metrics.WINDOW_S}
-    for key, lump in (("tracking_error", False), ("lumped", True)):
+    lumped_references = [lumped(r, inflow_ids) for r in references]
+    for key, run, against in (("tracking_error", rom, references),
+                              ("lumped", lumped(rom, inflow_ids), lumped_references)):
         result[key] = {
-            "rom": float(np.mean([error(rom, r, lump) for r in references])),
-            "dem_noise_floor": float(np.mean([error(references[j], references[i], lump)
-                                              for i, j in pairs]))}
+            "rom": evaluate.ensemble_score(run, against, t0, t1)["tracking_error"],
+            "dem_noise_floor": evaluate.noise_floor(against, t0, t1)["tracking_error"]}
     result["inflow_share"] = {"rom": inflow_share(rom, inflow_ids, t0, t1),
                               "dem": [inflow_share(r, inflow_ids, t0, t1) for r in references]}
     result["inflow_lots"] = {"quantiles": list(QUANTILES),
