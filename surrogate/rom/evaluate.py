@@ -33,6 +33,7 @@ import copy
 import time
 import warnings
 from dataclasses import asdict
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -586,12 +587,15 @@ def train(directory, out=None, n_mass_modes: int | None = None,
 
 # ------------------------------------------------------------ evaluation
 def run_storage(name: str, heldout: Path, model: RomModel | None = None, seed: int = 0,
-                options: dict | None = None, on_step=None) -> tuple[dict, float, object]:
+                options: dict | None = None, on_step=None,
+                build=None) -> tuple[dict, float, object]:
     """Drive storage model ``name`` through the held-out scenario.
 
     Returns ``(outflow, wall_s, storage)``; the wall time covers the storage
     model's calls only (receive, step), not the bookkeeping of this harness.
     ``on_step(k, time, storage)`` is called after every control step.
+    ``build(rng=..., **options)`` makes the storage model instead of
+    ``make_storage(name, ...)`` (a variant of the model ``name`` names).
     """
     from surrogate.dem import Dem
 
@@ -608,7 +612,8 @@ def run_storage(name: str, heldout: Path, model: RomModel | None = None, seed: i
     options = dict(options or {})
     if name == "rom":
         options.setdefault("model", model)
-    storage = make_storage(name, rng=np.random.default_rng(seed), **options)
+    build = build or partial(make_storage, name)
+    storage = build(rng=np.random.default_rng(seed), **options)
     storage.bind(store, OWNER)
     if name == "rom":
         storage.place(ids, np.asarray(initial["position"])[order])

@@ -44,9 +44,10 @@ def window_compositions(outflow: dict, t_start: float, t_end: float, window: flo
     return matrix, tids
 
 
-def tracking_error(model: dict, reference: dict, t_start: float, t_end: float,
-                   window: float = WINDOW_S) -> float:
-    """Mean total-variation distance of the per-window outflow compositions."""
+def window_distances(model: dict, reference: dict, t_start: float, t_end: float,
+                     window: float = WINDOW_S) -> np.ndarray:
+    """Total-variation distance of the two runs' outflow compositions in each
+    window in which either discharged (1 where only one did)."""
     a, ids_a = window_compositions(model, t_start, t_end, window)
     b, ids_b = window_compositions(reference, t_start, t_end, window)
     ids = np.union1d(ids_a, ids_b)
@@ -56,13 +57,19 @@ def tracking_error(model: dict, reference: dict, t_start: float, t_end: float,
     full_b[:, np.searchsorted(ids, ids_b)] = b
     mass_a, mass_b = full_a.sum(axis=1), full_b.sum(axis=1)
     used = (mass_a > 0) | (mass_b > 0)
-    if not used.any():
-        return float("nan")
     p = full_a[used] / np.where(mass_a[used] > 0, mass_a[used], 1.0)[:, None]
     q = full_b[used] / np.where(mass_b[used] > 0, mass_b[used], 1.0)[:, None]
     tv = 0.5 * np.abs(p - q).sum(axis=1)
     tv[(mass_a[used] == 0) | (mass_b[used] == 0)] = 1.0
-    return float(tv.mean())
+    return tv
+
+
+def tracking_error(model: dict, reference: dict, t_start: float, t_end: float,
+                   window: float = WINDOW_S) -> float:
+    """Mean total-variation distance of the per-window outflow compositions
+    (``window_distances``; NaN if neither run discharged)."""
+    tv = window_distances(model, reference, t_start, t_end, window)
+    return float(tv.mean()) if tv.size else float("nan")
 
 
 def velocity_field_rel_error(predicted, reference, reference_mass) -> float:
