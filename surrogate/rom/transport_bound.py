@@ -1,0 +1,270 @@
+"""How far the ROM's transport can track when its field is the DEM's own.
+
+A diagnosis of the ROM on the scenes of an exported held-out design
+(``surrogate/rom/README.md``, "What the transport can reach"). The ROM of the
+paper (sections "Digital twin as a distributed particle simulation" and
+"Integration test"; Wallin and Servin 2021) predicts a velocity field on its
+grid and moves the bulk's particles by it (``surrogate.rom.transport``,
+packing, feeder, surface layer). Here the prediction is replaced by the field
+of a DEM replica of the same scene (its ``field_velocity``, mass-weighted mean
+velocity per grid cell, sampled every second): at time t the mean of the
+replica's fields sampled within ``half_window`` [s] of t (the nearest sample
+when none is). Everything else is the ROM as shipped. Scored against the
+*other* replicas only (the field's own replica would score it against itself),
+the tracking error is what a perfect field regression would reach through this
+transport: a bound set by the transport and its grid, not by the fit.
+
+For each scene it reports, from ``evaluate.ensemble_score`` and
+``evaluate.noise_floor`` (tracking error, ``surrogate.rom.metrics``, issue 10):
+
+- ``dem_noise_floor``: the replicas against each other, every pair once;
+- ``rom``: the shipped ROM (its fitted field), every ROM seed against every replica;
+- ``bounds``: per (half window, packing) the ROM with each replica's field,
+  every (replica, ROM seed) against each other replica;
+
+each as the spread (mean, min, max, std, n) of the tracking error, of the same
+error with the inflow's ids as one (``tracking_split.lumped``: the inflow's share
+and the start pile's lots), and the mean distance per 30 s window.
+
+Run::
+
+    python -m surrogate.rom.transport_bound --data surrogate/rom/data/paper_heldout \\
+        --out DIR [--scene S] [--half-window 0 --half-window 15 ...] \\
+        [--packing avalanche --packing none] [--rom-seeds N] [--model FILE]
+
+Defaults: half windows 0, 15 and 180 s (the sample nearest t, a 30 s mean, the
+whole scene), packings "avalanche" (the shipped one) and "none", 2 ROM seeds.
+Writes ``transport_bound.json`` and ``transport_bound.png`` and prints one
+table per scene.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from cosim import jsonio
+from cosim.errors import ValidationError, check_finite_range
+from surrogate.rom import evaluate, metrics
+from surrogate.rom.storage import PACKINGS, RomStorage
+from surrogate.rom.tracking_split import lumped
+
+HALF_WINDOWS = (0.0, 15.0, 180.0)
+"""Default half windows [s] of the replayed field's time mean."""
+
+ROM_SEEDS = 2
+"""Default number of ROM seeds (0 .. N-1) per run."""
+
+
+def window_mean(times: np.ndarray, fields: np.ndarray, t: float, half_window: float) -> np.ndarray:
+    """Mean of ``fields`` (S, ...) over the samples at ``times`` (S,) [s] within
+    ``half_window`` [s] of ``t``; the sample nearest ``t`` when none is."""
+    near = np.abs(times - t) <= half_window
+    if not near.any():
+        near = np.arange(times.size) == np.argmin(np.abs(times - t))
+    return fields[near].mean(axis=0)
+
+
+class ReplayedField(RomStorage):
+    """The ROM with a DEM run's own velocity field in place of its prediction.
+
+    ``field_time`` (S,) [s] and ``field_velocity`` (S, ny, nx, 2) [m/s] are the
+    run's samples on the model's grid; the field at time t is their
+    ``window_mean`` with ``half_window`` [s] (>= 0). The resting bulk is the
+    DEM's own (``rest_fraction`` plays no part); every other option is
+    ``RomStorage``'s.
+    """
+
+    def __init__(self, model=None, *, field_time, field_velocity, half_window: float,
+                 **options):
+        super().__init__(model, **options)
+        self.field_time = np.asarray(field_time, dtype=np.float64)
+        self.field_velocity = np.asarray(field_velocity, dtype=np.float64)
+        grid = self.model.grid
+        if self.field_velocity.shape[1:] != (grid.ny, grid.nx, 2):
+            raise ValidationError("field_velocity", f"(S, {grid.ny}, {grid.nx}, 2) on the "
+                                  "model's grid", f"got {self.field_velocity.shape}")
+        self.half_window = float(check_finite_range("half_window", half_window, 0.0, unit="s"))
+
+    def _predicted(self, t: float, discharge_rate: float, mass: np.ndarray) -> np.ndarray:
+        return window_mean(self.field_time, self.field_velocity, t, self.half_window)
+
+
+def _scored(runs: list[tuple[dict, list[dict]]], inflow_ids, t0: float, t1: float) -> dict:
+    """Spreads of the tracking error and the lumped one, and the mean distance per
+    window, over every (run, reference) pair of ``runs`` ((outflow, references))."""
+    full, merged, windows = [], [], []
+    for outflow, references in runs:
+        full += evaluate.ensemble_score(outflow, references, t0, t1)["tracking_errors"]
+        merged += evaluate.ensemble_score(lumped(outflow, inflow_ids),
+                                          [lumped(r, inflow_ids) for r in references],
+                                          t0, t1)["tracking_errors"]
+        windows += [metrics.window_distances(outflow, r, t0, t1) for r in references]
+    return {"tracking_error": evaluate.spread(full), "lumped": evaluate.spread(merged),
+            "window_distance": [float(v) for v in np.mean(windows, axis=0)]}
+
+
+def _run(heldout: Path, model, seed: int, options: dict, build=None) -> dict:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # out-of-range warnings: the field is not the model's
+        outflow, _, _ = evaluate.run_storage("rom", heldout, model, seed=seed, options=options,
+                                             build=build)
+    return outflow
+
+
+def bound_scene(model, heldout: Path, half_windows=HALF_WINDOWS, packings=("avalanche", "none"),
+                rom_seeds: int = ROM_SEEDS, progress=None) -> dict:
+    """The floor, the shipped ROM and the bounds (module docstring) on the held-out
+    scene folder ``heldout`` (``evaluate``'s layout)."""
+    replicas = evaluate.stable_replicas(heldout)
+    references = [evaluate.outflow_of(run) for run in replicas]
+    if len(references) < 2:
+        raise ValidationError("replicas", "at least 2 stable DEM replicas of the scene",
+                              f"{len(references)} under {heldout}")
+    t0 = float(replicas[0]["t0"])
+    t1 = t0 + evaluate.scenario_duration(heldout)
+    with np.load(heldout / "emissions.npz") as stored:
+        inflow_ids = np.unique(stored["tracking_id"])
+    pairs = [(references[i], [references[j]]) for i in range(len(references))
+             for j in range(i + 1, len(references))]
+    result = {"replicas": len(references), "rom_seeds": rom_seeds, "window_s": metrics.WINDOW_S,
+              "dem_noise_floor": _scored(pairs, inflow_ids, t0, t1),
+              "rom": _scored([(_run(heldout, model, seed, {}), references)
+                              for seed in range(rom_seeds)], inflow_ids, t0, t1),
+              "bounds": []}
+    for half_window in half_windows:
+        for packing in packings:
+            if progress is not None:
+                progress(f"{heldout.name}: the DEM's field, half window {half_window:g} s, "
+                         f"packing {packing}")
+            runs = []
+            for k, replica in enumerate(replicas):
+                def build(replica=replica, half_window=half_window, **options):
+                    return ReplayedField(field_time=replica["field_time"],
+                                         field_velocity=replica["field_velocity"],
+                                         half_window=half_window, **options)
+                others = references[:k] + references[k + 1:]
+                runs += [(_run(heldout, model, seed, {"packing": packing}, build), others)
+                         for seed in range(rom_seeds)]
+            result["bounds"].append({"half_window_s": float(half_window), "packing": packing,
+                                     **_scored(runs, inflow_ids, t0, t1)})
+    return result
+
+
+def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=("avalanche", "none"),
+          rom_seeds: int = ROM_SEEDS, model=None, progress=None) -> dict:
+    """``bound_scene`` on ``scenes`` (default all) of the exported held-out design
+    ``data``: ``{scene: result}``."""
+    from surrogate.rom import heldout_layout
+    from surrogate.rom.model import RomModel
+    from surrogate.rom.storage import DEFAULT_MODEL
+
+    rom_seeds = evaluate.check_rom_seeds(rom_seeds)
+    for half_window in half_windows:
+        check_finite_range("--half-window", half_window, 0.0, unit="s")
+    for packing in packings:
+        if packing not in PACKINGS:
+            raise ValidationError("--packing", f"one of {PACKINGS}", f"got {packing!r}")
+    model = RomModel.load(model or DEFAULT_MODEL)
+    with tempfile.TemporaryDirectory() as folder:
+        layout = heldout_layout.write_layout(data, folder)
+        names = [s["name"] for s in layout["scenes"]]
+        for scene in scenes or ():
+            if scene not in names:
+                raise ValidationError("--scene", f"one of {names}", f"got {scene!r}")
+        return {name: bound_scene(model, Path(folder) / name, half_windows, packings, rom_seeds,
+                                  progress)
+                for name in (scenes or names)}
+
+
+def _row(name: str, entry: dict) -> str:
+    full, merged = entry["tracking_error"], entry["lumped"]
+    return (f"  {name:34} {full['mean']:.3f} ({full['min']:.3f}-{full['max']:.3f})   "
+            f"{merged['mean']:.3f}   " + " ".join(f"{v:.2f}" for v in entry["window_distance"]))
+
+
+def report(scene: str, result: dict) -> str:
+    """The printed table of one scene."""
+    lines = [f"{scene} ({result['replicas']} DEM replicas, ROM seeds 0-{result['rom_seeds'] - 1}):"
+             f" tracking error mean (min-max), inflow ids as one, per {result['window_s']:g} s "
+             "window",
+             _row("DEM noise floor", result["dem_noise_floor"]),
+             _row("ROM, its fitted field", result["rom"])]
+    lines += [_row(f"ROM, DEM field ±{b['half_window_s']:g} s, {b['packing']}", b)
+              for b in result["bounds"]]
+    return "\n".join(lines)
+
+
+def plot(results: dict, path: Path) -> None:
+    from cosim import plotstyle
+
+    plt = plotstyle.pyplot()
+    fig, axes = plt.subplots(1, len(results), figsize=(5.5 * len(results), 6.5), squeeze=False)
+    for ax, (scene, result) in zip(axes[0], results.items()):
+        entries = [("DEM noise floor", result["dem_noise_floor"], "tab:grey"),
+                   ("ROM, its fitted field", result["rom"], "tab:blue")]
+        colours = plt.get_cmap("Greens")(np.linspace(0.4, 0.9, max(len(result["bounds"]), 1)))
+        entries += [(f"DEM field ±{b['half_window_s']:g} s, packing {b['packing']}", b,
+                     colours[k])
+                    for k, b in enumerate(result["bounds"])]
+        for k, (label, entry, colour) in enumerate(entries):
+            spread = entry["tracking_error"]
+            ax.bar(k, spread["mean"], color=colour, label=label,
+                   yerr=[[spread["mean"] - spread["min"]], [spread["max"] - spread["mean"]]],
+                   capsize=3)
+        floor = result["dem_noise_floor"]["tracking_error"]["mean"]
+        ax.axhline(floor + 0.02, color="tab:red", ls="--", lw=1, label="floor + 0.02 (target)")
+        ax.set_xticks([])
+        ax.set_ylabel("tracking error (mean TV per 30 s window) [-]")
+        ax.set_title(scene)
+        plotstyle.legend(ax, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.02), ncol=2)
+    plotstyle.title(fig, "What the ROM's transport reaches with the DEM's own velocity field",
+                    "bars: mean over (replica, ROM seed) against the other replicas; "
+                    "whiskers: min-max")
+    fig.tight_layout()
+    plotstyle.save(fig, path, dpi=110)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m surrogate.rom.transport_bound",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", required=True, help="exported held-out design folder")
+    parser.add_argument("--out", required=True, type=Path, help="output folder")
+    parser.add_argument("--scene", action="append", default=None,
+                        help="held-out scene, e.g. heldout_q2000 (repeatable; default all)")
+    parser.add_argument("--half-window", action="append", type=float, default=None,
+                        help="half window [s] of the DEM field's time mean, >= 0 (repeatable; "
+                             "default 0, 15, 180)")
+    parser.add_argument("--packing", action="append", default=None,
+                        help=f"RomStorage's packing, one of {', '.join(PACKINGS)} (repeatable; "
+                             "default avalanche, none)")
+    parser.add_argument("--rom-seeds", type=int, default=ROM_SEEDS,
+                        help=f"ROM seeds 0 .. N-1 per run, 1-100 ({ROM_SEEDS})")
+    parser.add_argument("--model", default=None, help="ROM model file (default: the shipped one)")
+    args = parser.parse_args(argv)
+
+    def progress(message: str) -> None:
+        print(message, file=sys.stderr, flush=True)
+
+    try:
+        results = bound(args.data, args.scene, args.half_window or HALF_WINDOWS,
+                        args.packing or ("avalanche", "none"), args.rom_seeds, args.model,
+                        progress)
+    except (ValidationError, OSError) as error:
+        print(f"transport_bound: error: {error}", file=sys.stderr)
+        return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    jsonio.write(args.out / "transport_bound.json", results, indent=1)
+    plot(results, args.out / "transport_bound.png")
+    for scene, result in results.items():
+        print(report(scene, result))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

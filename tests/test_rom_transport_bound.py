@@ -1,0 +1,110 @@
+"""The ROM's transport driven by the DEM's own velocity field (``surrogate.rom.transport_bound``)."""
+
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cosim.errors import ValidationError
+from surrogate.rom import evaluate, heldout_layout, metrics, transport_bound
+from surrogate.rom.model import RomModel
+from surrogate.rom.storage import DEFAULT_MODEL
+
+ROOT = Path(__file__).resolve().parents[1]
+HELDOUT = ROOT / "surrogate" / "rom" / "data" / "paper_heldout"
+
+
+def test_window_mean_by_hand():
+    times = np.array([0.0, 1.0, 2.0, 3.0])
+    fields = np.arange(4.0)[:, None, None, None] * np.ones((4, 2, 3, 2))
+    assert transport_bound.window_mean(times, fields, 1.2, 0.0)[0, 0, 0] == 1.0  # nearest
+    assert transport_bound.window_mean(times, fields, 1.2, 1.0)[0, 0, 0] == 1.5  # 1 and 2
+    assert transport_bound.window_mean(times, fields, 1.5, 5.0)[1, 2, 1] == 1.5  # all
+    assert transport_bound.window_mean(times, fields, 10.0, 0.5)[0, 0, 0] == 3.0  # nearest
+
+
+def test_window_distances_average_to_the_tracking_error():
+    a = {"time": np.array([5.0, 10.0, 40.0, 50.0]), "tracking_id": np.array([1, 2, 2, 3]),
+         "mass": np.array([1.0, 1.0, 1.0, 1.0])}
+    b = {"time": np.array([5.0, 40.0]), "tracking_id": np.array([1, 3]),
+         "mass": np.array([2.0, 1.0])}
+    tv = metrics.window_distances(a, b, 0.0, 60.0)
+    assert tv.tolist() == [0.5, 0.5]
+    assert metrics.tracking_error(a, b, 0.0, 60.0) == pytest.approx(0.5)
+
+
+def test_a_field_off_the_model_grid_or_a_negative_window_is_refused():
+    model = RomModel.load(DEFAULT_MODEL)
+    grid = model.grid
+    good = np.zeros((2, grid.ny, grid.nx, 2))
+    with pytest.raises(ValidationError, match="field_velocity"):
+        transport_bound.ReplayedField(model, field_time=[0.0, 1.0],
+                                      field_velocity=good[:, :, :-1], half_window=0.0)
+    with pytest.raises(ValidationError, match="half_window"):
+        transport_bound.ReplayedField(model, field_time=[0.0, 1.0], field_velocity=good,
+                                      half_window=-1.0)
+
+
+def test_the_replayed_field_replaces_the_prediction():
+    """At time t the field the transport projects is the replica's window mean, not the fit."""
+    with tempfile.TemporaryDirectory() as folder:
+        heldout_layout.write_layout(HELDOUT, folder)
+        replica = evaluate.stable_replicas(Path(folder) / "heldout_q2000")[0]
+    model = RomModel.load(DEFAULT_MODEL)
+    storage = transport_bound.ReplayedField(model, field_time=replica["field_time"],
+                                            field_velocity=replica["field_velocity"],
+                                            half_window=15.0)
+    t = float(replica["field_time"][40])
+    mass = replica["field_mass"][40]
+    expected = transport_bound.window_mean(np.float64(replica["field_time"]),
+                                           np.float64(replica["field_velocity"]), t, 15.0)
+    assert np.abs(expected).max() > 0.1  # the scene's funnel flow
+    assert np.array_equal(storage._predicted(t, 2000.0, mass), expected)
+
+
+def test_the_bound_on_a_held_out_scene(tmp_path):
+    code = transport_bound.main(["--data", str(HELDOUT), "--scene", "heldout_q2000",
+                                 "--half-window", "180", "--packing", "none",
+                                 "--rom-seeds", "1", "--out", str(tmp_path)])
+    assert code == 0
+    assert (tmp_path / "transport_bound.png").stat().st_size > 0
+    result = json.loads((tmp_path / "transport_bound.json").read_text())["heldout_q2000"]
+    replicas = result["replicas"]
+    assert replicas == 3 and result["rom_seeds"] == 1
+    entries = [result["dem_noise_floor"], result["rom"], *result["bounds"]]
+    # every pair once; the ROM against each replica; each replica's field against the others
+    counts = [replicas * (replicas - 1) // 2, replicas, replicas * (replicas - 1)]
+    assert [e["tracking_error"]["n"] for e in entries] == counts
+    assert result["bounds"][0]["half_window_s"] == 180.0
+    assert result["bounds"][0]["packing"] == "none"
+    for entry in entries:
+        full, merged = entry["tracking_error"], entry["lumped"]
+        assert 0.0 <= full["min"] <= full["mean"] <= full["max"] <= 1.0
+        assert merged["mean"] <= full["mean"] + 1e-12  # merging ids never raises a distance
+        assert len(entry["window_distance"]) == 6  # 180 s in 30 s windows
+        assert np.mean(entry["window_distance"]) == pytest.approx(full["mean"], rel=1e-9)
+    # the floor is the one `minetwin rom evaluate` reports
+    with tempfile.TemporaryDirectory() as folder:
+        heldout_layout.write_layout(HELDOUT, folder)
+        scene = Path(folder) / "heldout_q2000"
+        runs = evaluate.stable_replicas(scene)
+        t0 = float(runs[0]["t0"])
+        floor = evaluate.noise_floor([evaluate.outflow_of(r) for r in runs], t0,
+                                     t0 + evaluate.scenario_duration(scene))
+    assert result["dem_noise_floor"]["tracking_error"]["mean"] == pytest.approx(
+        floor["tracking_error"], rel=1e-12)
+
+
+@pytest.mark.parametrize("argument, field", [
+    (["--scene", "nope"], "--scene"),
+    (["--half-window", "-1"], "--half-window"),
+    (["--packing", "tight"], "--packing"),
+    (["--rom-seeds", "0"], "rom_seeds"),
+])
+def test_bad_input_exits_2_naming_the_field(argument, field, tmp_path, capsys):
+    assert transport_bound.main(["--data", str(HELDOUT), "--out", str(tmp_path),
+                                 *argument]) == 2
+    assert field in capsys.readouterr().err
+    assert not (tmp_path / "transport_bound.json").exists()
