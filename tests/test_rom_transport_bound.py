@@ -25,6 +25,18 @@ def test_window_mean_by_hand():
     assert transport_bound.window_mean(times, fields, 10.0, 0.5)[0, 0, 0] == 3.0  # nearest
 
 
+def test_the_field_is_extended_above_the_dem_pile_by_hand():
+    # one sample, 4 rows, 3 columns; full cell 10 kg, so a cell of 5 kg or more is in the pile
+    mass = np.array([[[10.0, 10.0, 0.0], [6.0, 2.0, 0.0], [1.0, 9.0, 0.0], [0.0, 0.0, 0.0]]])
+    velocity = np.arange(24.0).reshape(1, 4, 3, 2)
+    out = transport_bound.extended(velocity, mass, 10.0)
+    assert np.array_equal(out[0, :2, 0], velocity[0, :2, 0])  # column 0: top at row 1
+    assert np.array_equal(out[0, 2:, 0], velocity[0, [1, 1], 0])
+    assert np.array_equal(out[0, :3, 1], velocity[0, :3, 1])  # column 1: top at row 2
+    assert np.array_equal(out[0, 3, 1], velocity[0, 2, 1])
+    assert np.array_equal(out[0, :, 2], velocity[0, :, 2])  # column 2: no pile, as it was
+
+
 def test_window_distances_average_to_the_tracking_error():
     a = {"time": np.array([5.0, 10.0, 40.0, 50.0]), "tracking_id": np.array([1, 2, 2, 3]),
          "mass": np.array([1.0, 1.0, 1.0, 1.0])}
@@ -39,27 +51,34 @@ def test_a_field_off_the_model_grid_or_a_negative_window_is_refused():
     model = RomModel.load(DEFAULT_MODEL)
     grid = model.grid
     good = np.zeros((2, grid.ny, grid.nx, 2))
+    mass = np.zeros(good.shape[:-1])
     with pytest.raises(ValidationError, match="field_velocity"):
-        transport_bound.ReplayedField(model, field_time=[0.0, 1.0],
+        transport_bound.ReplayedField(model, field_time=[0.0, 1.0], field_mass=mass,
                                       field_velocity=good[:, :, :-1], half_window=0.0)
+    with pytest.raises(ValidationError, match="field_mass"):
+        transport_bound.ReplayedField(model, field_time=[0.0, 1.0], field_mass=mass[:1],
+                                      field_velocity=good, half_window=0.0)
     with pytest.raises(ValidationError, match="half_window"):
         transport_bound.ReplayedField(model, field_time=[0.0, 1.0], field_velocity=good,
-                                      half_window=-1.0)
+                                      field_mass=mass, half_window=-1.0)
 
 
 def test_the_replayed_field_replaces_the_prediction():
-    """At time t the field the transport projects is the replica's window mean, not the fit."""
+    """At time t the field the transport projects is the replica's extended field's
+    window mean, not the fit."""
     with tempfile.TemporaryDirectory() as folder:
         heldout_layout.write_layout(HELDOUT, folder)
         replica = evaluate.stable_replicas(Path(folder) / "heldout_q2000")[0]
     model = RomModel.load(DEFAULT_MODEL)
     storage = transport_bound.ReplayedField(model, field_time=replica["field_time"],
                                             field_velocity=replica["field_velocity"],
-                                            half_window=15.0)
+                                            field_mass=replica["field_mass"], half_window=15.0)
     t = float(replica["field_time"][40])
     mass = replica["field_mass"][40]
-    expected = transport_bound.window_mean(np.float64(replica["field_time"]),
-                                           np.float64(replica["field_velocity"]), t, 15.0)
+    field = transport_bound.extended(np.float64(replica["field_velocity"]),
+                                     np.float64(replica["field_mass"]),
+                                     model.container.full_cell_mass(model.grid))
+    expected = transport_bound.window_mean(np.float64(replica["field_time"]), field, t, 15.0)
     assert np.abs(expected).max() > 0.1  # the scene's funnel flow
     assert np.array_equal(storage._predicted(t, 2000.0, mass), expected)
 
@@ -73,6 +92,8 @@ def test_the_bound_on_a_held_out_scene(tmp_path):
     result = json.loads((tmp_path / "transport_bound.json").read_text())["heldout_q2000"]
     replicas = result["replicas"]
     assert replicas == 3 and result["rom_seeds"] == 1
+    # the DEM's mean settled density on the shipped model's training design (packing.py)
+    assert result["packing_density_kg_m2"] == pytest.approx(564.2, abs=0.05)
     entries = [result["dem_noise_floor"], result["rom"], *result["bounds"]]
     # every pair once; the ROM against each replica; each replica's field against the others
     counts = [replicas * (replicas - 1) // 2, replicas, replicas * (replicas - 1)]
@@ -102,6 +123,7 @@ def test_the_bound_on_a_held_out_scene(tmp_path):
     (["--half-window", "-1"], "--half-window"),
     (["--packing", "tight"], "--packing"),
     (["--rom-seeds", "0"], "rom_seeds"),
+    (["--packing-density", "0"], "--packing-density"),
 ])
 def test_bad_input_exits_2_naming_the_field(argument, field, tmp_path, capsys):
     assert transport_bound.main(["--data", str(HELDOUT), "--out", str(tmp_path),

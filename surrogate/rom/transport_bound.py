@@ -9,16 +9,31 @@ packing, feeder, surface layer). Here the prediction is replaced by the field
 of a DEM replica of the same scene (its ``field_velocity``, mass-weighted mean
 velocity per grid cell, sampled every second): at time t the mean of the
 replica's fields sampled within ``half_window`` [s] of t (the nearest sample
-when none is). Everything else is the ROM as shipped. Scored against the
-*other* replicas only (the field's own replica would score it against itself),
-the tracking error is what a perfect field regression would reach through this
-transport: a bound set by the transport and its grid, not by the fit.
+when none is). Scored against the *other* replicas only (the field's own
+replica would score it against itself), the tracking error is what a fit that
+predicted the DEM's field exactly would reach through this transport.
+
+Two things make the DEM's field fit the ROM's pile, which is not the DEM's:
+
+- The DEM's field is 0 wherever the DEM had no bulk, so ROM particles above
+  the DEM's surface would never move. In every column the field above the
+  highest cell holding at least ``packing.ABOVE_FILL`` of a full cell
+  (rho_A dx dy) takes that cell's value (``extended``).
+- The field moves the DEM's bulk, which is looser than the ROM's container
+  packs (``surrogate.rom.packing``: 564.2 kg/m^2 on the paper design against
+  621.1). At the container's density the ROM's surface heights, where the
+  inflow lands, lie 3-4 m under the DEM pile's top near the feeder's axis, so
+  the storage runs at the DEM's mean settled density
+  (``RomStorage(packing_density=...)``, default: measured by
+  ``packing.settled_density`` on the shipped model's training design,
+  ``TRAINING_DESIGN``).
 
 For each scene it reports, from ``evaluate.ensemble_score`` and
 ``evaluate.noise_floor`` (tracking error, ``surrogate.rom.metrics``, issue 10):
 
 - ``dem_noise_floor``: the replicas against each other, every pair once;
-- ``rom``: the shipped ROM (its fitted field), every ROM seed against every replica;
+- ``rom``: the shipped ROM (its fitted field, its own density), every ROM seed
+  against every replica;
 - ``bounds``: per (half window, packing) the ROM with each replica's field,
   every (replica, ROM seed) against each other replica;
 
@@ -30,10 +45,11 @@ Run::
 
     python -m surrogate.rom.transport_bound --data surrogate/rom/data/paper_heldout \\
         --out DIR [--scene S] [--half-window 0 --half-window 15 ...] \\
-        [--packing avalanche --packing none] [--rom-seeds N] [--model FILE]
+        [--packing none --packing avalanche] [--packing-density KG_M2] [--rom-seeds N] \\
+        [--model FILE]
 
 Defaults: half windows 0, 15 and 180 s (the sample nearest t, a 30 s mean, the
-whole scene), packings "avalanche" (the shipped one) and "none", 2 ROM seeds.
+whole scene), packings "none" and "avalanche" (the shipped one), 2 ROM seeds.
 Writes ``transport_bound.json`` and ``transport_bound.png`` and prints one
 table per scene.
 """
@@ -51,6 +67,7 @@ import numpy as np
 from cosim import jsonio
 from cosim.errors import ValidationError, check_finite_range
 from surrogate.rom import evaluate, metrics
+from surrogate.rom.packing import ABOVE_FILL, settled_density
 from surrogate.rom.storage import PACKINGS, RomStorage
 from surrogate.rom.tracking_split import lumped
 
@@ -59,6 +76,12 @@ HALF_WINDOWS = (0.0, 15.0, 180.0)
 
 ROM_SEEDS = 2
 """Default number of ROM seeds (0 .. N-1) per run."""
+
+PACKINGS_SCORED = ("none", "avalanche")
+"""Default packings of the ROM with the DEM's field (``RomStorage(packing=...)``)."""
+
+TRAINING_DESIGN = Path(__file__).resolve().parent / "data" / "paper_design"
+"""The shipped model's training design, where the default packing density is measured."""
 
 
 def window_mean(times: np.ndarray, fields: np.ndarray, t: float, half_window: float) -> np.ndarray:
@@ -70,25 +93,44 @@ def window_mean(times: np.ndarray, fields: np.ndarray, t: float, half_window: fl
     return fields[near].mean(axis=0)
 
 
+def extended(velocity: np.ndarray, mass: np.ndarray, full_cell_mass: float) -> np.ndarray:
+    """Fields ``velocity`` (S, ny, nx, 2) [m/s] with every cell above a column's
+    highest cell holding at least ``packing.ABOVE_FILL`` x ``full_cell_mass`` [kg]
+    of ``mass`` (S, ny, nx) [kg] given that cell's value (a column without one
+    is left as it is)."""
+    filled = np.asarray(mass) >= ABOVE_FILL * full_cell_mass
+    rows = np.arange(filled.shape[1])[None, :, None]
+    top = np.where(filled, rows, -1).max(axis=1, keepdims=True)  # (S, 1, nx)
+    source = np.where((top >= 0) & (rows > top), top, rows)
+    return np.take_along_axis(np.asarray(velocity), source[..., None], axis=1)
+
+
 class ReplayedField(RomStorage):
     """The ROM with a DEM run's own velocity field in place of its prediction.
 
-    ``field_time`` (S,) [s] and ``field_velocity`` (S, ny, nx, 2) [m/s] are the
-    run's samples on the model's grid; the field at time t is their
-    ``window_mean`` with ``half_window`` [s] (>= 0). The resting bulk is the
-    DEM's own (``rest_fraction`` plays no part); every other option is
-    ``RomStorage``'s.
+    ``field_time`` (S,) [s], ``field_velocity`` (S, ny, nx, 2) [m/s] and
+    ``field_mass`` (S, ny, nx) [kg] are the run's samples on the model's grid;
+    the field at time t is the ``window_mean`` with ``half_window`` [s] (>= 0) of
+    the velocities ``extended`` above the DEM's pile (module docstring). The
+    resting bulk is the DEM's own (``rest_fraction`` plays no part); every other
+    option is ``RomStorage``'s.
     """
 
-    def __init__(self, model=None, *, field_time, field_velocity, half_window: float,
-                 **options):
+    def __init__(self, model=None, *, field_time, field_velocity, field_mass,
+                 half_window: float, **options):
         super().__init__(model, **options)
-        self.field_time = np.asarray(field_time, dtype=np.float64)
-        self.field_velocity = np.asarray(field_velocity, dtype=np.float64)
         grid = self.model.grid
-        if self.field_velocity.shape[1:] != (grid.ny, grid.nx, 2):
+        velocity = np.asarray(field_velocity, dtype=np.float64)
+        mass = np.asarray(field_mass, dtype=np.float64)
+        if velocity.shape[1:] != (grid.ny, grid.nx, 2):
             raise ValidationError("field_velocity", f"(S, {grid.ny}, {grid.nx}, 2) on the "
-                                  "model's grid", f"got {self.field_velocity.shape}")
+                                  "model's grid", f"got {velocity.shape}")
+        if mass.shape != velocity.shape[:-1]:
+            raise ValidationError("field_mass", f"{velocity.shape[:-1]}, as field_velocity",
+                                  f"got {mass.shape}")
+        self.field_time = np.asarray(field_time, dtype=np.float64)
+        self.field_velocity = extended(velocity, mass,
+                                       self.model.container.full_cell_mass(grid))
         self.half_window = float(check_finite_range("half_window", half_window, 0.0, unit="s"))
 
     def _predicted(self, t: float, discharge_rate: float, mass: np.ndarray) -> np.ndarray:
@@ -117,10 +159,11 @@ def _run(heldout: Path, model, seed: int, options: dict, build=None) -> dict:
     return outflow
 
 
-def bound_scene(model, heldout: Path, half_windows=HALF_WINDOWS, packings=("avalanche", "none"),
-                rom_seeds: int = ROM_SEEDS, progress=None) -> dict:
+def bound_scene(model, heldout: Path, packing_density: float, half_windows=HALF_WINDOWS,
+                packings=PACKINGS_SCORED, rom_seeds: int = ROM_SEEDS, progress=None) -> dict:
     """The floor, the shipped ROM and the bounds (module docstring) on the held-out
-    scene folder ``heldout`` (``evaluate``'s layout)."""
+    scene folder ``heldout`` (``evaluate``'s layout), the ROM with the DEM's field
+    packed at ``packing_density`` [kg/m^2]."""
     replicas = evaluate.stable_replicas(heldout)
     references = [evaluate.outflow_of(run) for run in replicas]
     if len(references) < 2:
@@ -133,6 +176,7 @@ def bound_scene(model, heldout: Path, half_windows=HALF_WINDOWS, packings=("aval
     pairs = [(references[i], [references[j]]) for i in range(len(references))
              for j in range(i + 1, len(references))]
     result = {"replicas": len(references), "rom_seeds": rom_seeds, "window_s": metrics.WINDOW_S,
+              "packing_density_kg_m2": packing_density,
               "dem_noise_floor": _scored(pairs, inflow_ids, t0, t1),
               "rom": _scored([(_run(heldout, model, seed, {}), references)
                               for seed in range(rom_seeds)], inflow_ids, t0, t1),
@@ -147,19 +191,23 @@ def bound_scene(model, heldout: Path, half_windows=HALF_WINDOWS, packings=("aval
                 def build(replica=replica, half_window=half_window, **options):
                     return ReplayedField(field_time=replica["field_time"],
                                          field_velocity=replica["field_velocity"],
+                                         field_mass=replica["field_mass"],
                                          half_window=half_window, **options)
                 others = references[:k] + references[k + 1:]
-                runs += [(_run(heldout, model, seed, {"packing": packing}, build), others)
+                options = {"packing": packing, "packing_density": packing_density}
+                runs += [(_run(heldout, model, seed, options, build), others)
                          for seed in range(rom_seeds)]
             result["bounds"].append({"half_window_s": float(half_window), "packing": packing,
                                      **_scored(runs, inflow_ids, t0, t1)})
     return result
 
 
-def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=("avalanche", "none"),
-          rom_seeds: int = ROM_SEEDS, model=None, progress=None) -> dict:
+def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=PACKINGS_SCORED,
+          rom_seeds: int = ROM_SEEDS, model=None, packing_density: float | None = None,
+          progress=None) -> dict:
     """``bound_scene`` on ``scenes`` (default all) of the exported held-out design
-    ``data``: ``{scene: result}``."""
+    ``data``: ``{scene: result}``. ``packing_density`` [kg/m^2] defaults to the
+    DEM's mean settled density on ``TRAINING_DESIGN``."""
     from surrogate.rom import heldout_layout
     from surrogate.rom.model import RomModel
     from surrogate.rom.storage import DEFAULT_MODEL
@@ -170,6 +218,10 @@ def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=("avalanche", "
     for packing in packings:
         if packing not in PACKINGS:
             raise ValidationError("--packing", f"one of {PACKINGS}", f"got {packing!r}")
+    if packing_density is None:
+        packing_density = settled_density(TRAINING_DESIGN)["density"]
+    packing_density = float(check_finite_range("--packing-density", packing_density, 0.0,
+                                               low_open=True, unit="kg/m^2"))
     model = RomModel.load(model or DEFAULT_MODEL)
     with tempfile.TemporaryDirectory() as folder:
         layout = heldout_layout.write_layout(data, folder)
@@ -177,8 +229,8 @@ def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=("avalanche", "
         for scene in scenes or ():
             if scene not in names:
                 raise ValidationError("--scene", f"one of {names}", f"got {scene!r}")
-        return {name: bound_scene(model, Path(folder) / name, half_windows, packings, rom_seeds,
-                                  progress)
+        return {name: bound_scene(model, Path(folder) / name, packing_density, half_windows,
+                                  packings, rom_seeds, progress)
                 for name in (scenes or names)}
 
 
@@ -190,9 +242,9 @@ def _row(name: str, entry: dict) -> str:
 
 def report(scene: str, result: dict) -> str:
     """The printed table of one scene."""
-    lines = [f"{scene} ({result['replicas']} DEM replicas, ROM seeds 0-{result['rom_seeds'] - 1}):"
-             f" tracking error mean (min-max), inflow ids as one, per {result['window_s']:g} s "
-             "window",
+    lines = [f"{scene} ({result['replicas']} DEM replicas, ROM seeds 0-{result['rom_seeds'] - 1}, "
+             f"the DEM's field at {result['packing_density_kg_m2']:.1f} kg/m^2): tracking "
+             f"error mean (min-max), inflow ids as one, per {result['window_s']:g} s window",
              _row("DEM noise floor", result["dem_noise_floor"]),
              _row("ROM, its fitted field", result["rom"])]
     lines += [_row(f"ROM, DEM field ±{b['half_window_s']:g} s, {b['packing']}", b)
@@ -224,8 +276,9 @@ def plot(results: dict, path: Path) -> None:
         ax.set_title(scene)
         plotstyle.legend(ax, fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.02), ncol=2)
     plotstyle.title(fig, "What the ROM's transport reaches with the DEM's own velocity field",
-                    "bars: mean over (replica, ROM seed) against the other replicas; "
-                    "whiskers: min-max")
+                    "bars: mean over (replica, ROM seed) against the other replicas, whiskers: "
+                    "min-max; the DEM's field with the bulk at "
+                    f"{next(iter(results.values()))['packing_density_kg_m2']:.1f} kg/m^2")
     fig.tight_layout()
     plotstyle.save(fig, path, dpi=110)
 
@@ -242,7 +295,11 @@ def main(argv=None) -> int:
                              "default 0, 15, 180)")
     parser.add_argument("--packing", action="append", default=None,
                         help=f"RomStorage's packing, one of {', '.join(PACKINGS)} (repeatable; "
-                             "default avalanche, none)")
+                             "default none, avalanche)")
+    parser.add_argument("--packing-density", type=float, default=None,
+                        help="bulk density [kg/m^2] of the ROM with the DEM's field (default: "
+                             "the DEM's mean settled density on the training design, "
+                             "surrogate.rom.packing)")
     parser.add_argument("--rom-seeds", type=int, default=ROM_SEEDS,
                         help=f"ROM seeds 0 .. N-1 per run, 1-100 ({ROM_SEEDS})")
     parser.add_argument("--model", default=None, help="ROM model file (default: the shipped one)")
@@ -253,8 +310,8 @@ def main(argv=None) -> int:
 
     try:
         results = bound(args.data, args.scene, args.half_window or HALF_WINDOWS,
-                        args.packing or ("avalanche", "none"), args.rom_seeds, args.model,
-                        progress)
+                        args.packing or PACKINGS_SCORED, args.rom_seeds, args.model,
+                        args.packing_density, progress)
     except (ValidationError, OSError) as error:
         print(f"transport_bound: error: {error}", file=sys.stderr)
         return 2
