@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -78,12 +77,8 @@ def profile(data, scene: str, model=None, options: dict | None = None,
     from surrogate.rom.storage import DEFAULT_MODEL
 
     model = RomModel.load(model or DEFAULT_MODEL)
-    with tempfile.TemporaryDirectory() as folder:
-        layout = heldout_layout.write_layout(data, folder)
-        names = [s["name"] for s in layout["scenes"]]
-        if scene not in names:
-            raise ValidationError("--scene", f"one of {names}", f"got {scene!r}")
-        heldout = Path(folder) / scene
+    with heldout_layout.scenes_laid_out(data, [scene]) as (folder, _):
+        heldout = folder / scene
         replicas = [evaluate.load_run(heldout / f"{name}.npz")
                     for name in evaluate.replica_names(evaluate.DEM_REPLICAS)
                     if (heldout / f"{name}.npz").is_file()]

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -123,3 +125,17 @@ def write_layout(data, out, progress=None) -> dict:
     meta.update(heldout_scenarios=scenes, heldout_source=str(data), skipped=skipped)
     (out / "doe.json").write_text(json.dumps(meta, indent=1, allow_nan=False))
     return {"scenes": scenes, "skipped": skipped}
+
+
+@contextmanager
+def scenes_laid_out(data, scenes=None):
+    """``write_layout`` of the held-out design ``data`` in a temporary folder, for
+    the diagnostics that score scenes of it: yields ``(folder, names)``, ``names``
+    the ``scenes`` asked for (default every scene laid out), each refused with the
+    field ``--scene`` unless the design has it. The folder goes when the block ends."""
+    with tempfile.TemporaryDirectory() as folder:
+        names = [s["name"] for s in write_layout(data, folder)["scenes"]]
+        for scene in scenes or ():
+            if scene not in names:
+                raise ValidationError("--scene", f"one of {names}", f"got {scene!r}")
+        yield Path(folder), list(scenes or names)

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -129,14 +128,8 @@ def split(data, scenes=None, model=None, options: dict | None = None, seed: int 
     from surrogate.rom.storage import DEFAULT_MODEL
 
     model = RomModel.load(model or DEFAULT_MODEL)
-    with tempfile.TemporaryDirectory() as folder:
-        layout = heldout_layout.write_layout(data, folder)
-        names = [s["name"] for s in layout["scenes"]]
-        for scene in scenes or ():
-            if scene not in names:
-                raise ValidationError("--scene", f"one of {names}", f"got {scene!r}")
-        return {name: split_scene(model, Path(folder) / name, options, seed)
-                for name in (scenes or names)}
+    with heldout_layout.scenes_laid_out(data, scenes) as (folder, names):
+        return {name: split_scene(model, folder / name, options, seed) for name in names}
 
 
 def _windows(rows) -> str:

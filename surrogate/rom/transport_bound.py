@@ -58,7 +58,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -223,15 +222,10 @@ def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=PACKINGS_SCORED
     packing_density = float(check_finite_range("--packing-density", packing_density, 0.0,
                                                low_open=True, unit="kg/m^2"))
     model = RomModel.load(model or DEFAULT_MODEL)
-    with tempfile.TemporaryDirectory() as folder:
-        layout = heldout_layout.write_layout(data, folder)
-        names = [s["name"] for s in layout["scenes"]]
-        for scene in scenes or ():
-            if scene not in names:
-                raise ValidationError("--scene", f"one of {names}", f"got {scene!r}")
-        return {name: bound_scene(model, Path(folder) / name, packing_density, half_windows,
+    with heldout_layout.scenes_laid_out(data, scenes) as (folder, names):
+        return {name: bound_scene(model, folder / name, packing_density, half_windows,
                                   packings, rom_seeds, progress)
-                for name in (scenes or names)}
+                for name in names}
 
 
 def _row(name: str, entry: dict) -> str:
