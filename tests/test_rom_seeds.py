@@ -3,7 +3,6 @@ as over the DEM replicas."""
 
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -20,9 +19,8 @@ HELDOUT = ROOT / "surrogate" / "rom" / "data" / "paper_heldout"
 
 def test_the_rom_is_scored_over_its_seeds_and_seed_0_is_the_single_run():
     model = RomModel.load(DEFAULT_MODEL)
-    with tempfile.TemporaryDirectory() as folder:
-        heldout_layout.write_layout(HELDOUT, folder)
-        scene = Path(folder) / "heldout_q2000"
+    with heldout_layout.scenes_laid_out(HELDOUT, ["heldout_q2000"]) as (folder, _):
+        scene = folder / "heldout_q2000"
         one = evaluate.evaluate_scenario(model, scene)
         two = evaluate.evaluate_scenario(model, scene, rom_seeds=2)
         replicas = evaluate.stable_replicas(scene)

@@ -2,7 +2,6 @@
 (``surrogate.rom.tracking_split``)."""
 
 import json
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -64,9 +63,8 @@ def test_the_split_of_the_shipped_rom_on_a_held_out_scene(tmp_path):
     for rows in [result["inflow_lots"]["rom"]] + result["inflow_lots"]["dem"]:
         assert all(row is None or row == sorted(row) for row in rows)
     # its full error is the one `minetwin rom evaluate` scores the same run by
-    with tempfile.TemporaryDirectory() as folder:
-        heldout_layout.write_layout(HELDOUT, folder)
-        scene = Path(folder) / "heldout_q2000"
+    with heldout_layout.scenes_laid_out(HELDOUT, ["heldout_q2000"]) as (folder, _):
+        scene = folder / "heldout_q2000"
         replicas = evaluate.stable_replicas(scene)
         t0 = float(replicas[0]["t0"])
         rom, _, _ = evaluate.run_storage("rom", scene, RomModel.load(DEFAULT_MODEL))

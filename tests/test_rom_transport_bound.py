@@ -1,7 +1,6 @@
 """The ROM's transport driven by the DEM's own velocity field (``surrogate.rom.transport_bound``)."""
 
 import json
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -66,9 +65,8 @@ def test_a_field_off_the_model_grid_or_a_negative_window_is_refused():
 def test_the_replayed_field_replaces_the_prediction():
     """At time t the field the transport projects is the replica's extended field's
     window mean, not the fit."""
-    with tempfile.TemporaryDirectory() as folder:
-        heldout_layout.write_layout(HELDOUT, folder)
-        replica = evaluate.stable_replicas(Path(folder) / "heldout_q2000")[0]
+    with heldout_layout.scenes_laid_out(HELDOUT, ["heldout_q2000"]) as (folder, _):
+        replica = evaluate.stable_replicas(folder / "heldout_q2000")[0]
     model = RomModel.load(DEFAULT_MODEL)
     storage = transport_bound.ReplayedField(model, field_time=replica["field_time"],
                                             field_velocity=replica["field_velocity"],
@@ -107,9 +105,8 @@ def test_the_bound_on_a_held_out_scene(tmp_path):
         assert len(entry["window_distance"]) == 6  # 180 s in 30 s windows
         assert np.mean(entry["window_distance"]) == pytest.approx(full["mean"], rel=1e-9)
     # the floor is the one `minetwin rom evaluate` reports
-    with tempfile.TemporaryDirectory() as folder:
-        heldout_layout.write_layout(HELDOUT, folder)
-        scene = Path(folder) / "heldout_q2000"
+    with heldout_layout.scenes_laid_out(HELDOUT, ["heldout_q2000"]) as (folder, _):
+        scene = folder / "heldout_q2000"
         runs = evaluate.stable_replicas(scene)
         t0 = float(runs[0]["t0"])
         floor = evaluate.noise_floor([evaluate.outflow_of(r) for r in runs], t0,
