@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from cosim import jsonio
-from cosim.errors import ValidationError
+from cosim.errors import ValidationError, raise_if_interrupted
 
 RETRIES = 2
 """Default number of times a task whose worker died is run again."""
@@ -122,6 +122,7 @@ def call(function, kwargs: dict, common: dict | None = None) -> dict:
     try:
         value = function(**kwargs, **(common or {}))
     except Exception as exc:  # noqa: BLE001 - the task's failure is its record, not the batch's
+        raise_if_interrupted(exc)
         raise TaskFailed(f"{type(exc).__name__}: {exc}") from None
     return {"value": value, "code_version": code_version(), "wall_s": time.perf_counter() - started,
             "host": socket.gethostname(), "pid": os.getpid()}

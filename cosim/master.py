@@ -60,7 +60,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from cosim.errors import ValidationError
+from cosim.errors import ValidationError, raise_if_interrupted
 
 
 class CosimulationError(RuntimeError):
@@ -481,6 +481,7 @@ class Master:
             try:
                 component.step(t, dt)
             except Exception as exc:
+                raise_if_interrupted(exc)
                 if isinstance(exc, CosimulationError) and not exc.blames_component:
                     raise
                 raise CosimulationError(

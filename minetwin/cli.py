@@ -12,7 +12,7 @@ import argparse
 import importlib
 import sys
 
-from cosim.errors import ValidationError
+from cosim.errors import ValidationError, interrupted
 
 COMMAND_MODULES = (
     "minetwin.commands.simulate",
@@ -73,7 +73,9 @@ def main(argv: list[str] | None = None) -> int:
         where = f"{exc.filename}: " if exc.filename else ""
         print(f"minetwin {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:  # SystemError: Ctrl-C inside a numba kernel
+        if not interrupted(exc):
+            raise
         print(f"minetwin {args.command}: interrupted", file=sys.stderr)
         return 130
 

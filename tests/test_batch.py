@@ -14,6 +14,8 @@ from pathlib import Path
 import pytest
 
 from cosim import batch
+from minetwin import cli
+from minetwin.commands import sweep
 from minetwin.commands.sweep import parse_setting
 
 # parse_setting is a real function of the project that refuses malformed input:
@@ -53,6 +55,39 @@ def test_records_in_task_order_with_any_number_of_workers_and_failures_recorded(
     err = capsys.readouterr().err
     assert "parse 1 FAILED" in err
     assert "| 4/4 [" in err and "3 done, 1 failed, 0 running" in err  # tqdm's line
+
+
+def interrupted_in_a_kernel(text):
+    """A run hit by Ctrl-C inside a numba kernel: SystemError caused by the interrupt."""
+    if text == "no_equals_sign":
+        raise SystemError("CPUDispatcher returned a result with an exception set") \
+            from KeyboardInterrupt()
+    return parse_setting(text)
+
+
+def test_ctrl_c_inside_a_run_stops_the_batch_and_keeps_what_is_stored(tmp_path):
+    tasks = [batch.Task(f"parse {k}", interrupted_in_a_kernel, {"text": text})
+             for k, text in enumerate(TEXTS)]
+    with batch.LocalExecutor(1) as executor, pytest.raises(KeyboardInterrupt):
+        batch.run_batch(tasks, executor, store=tmp_path, progress=False)
+    stored = [json.loads(p.read_text()) for p in (tmp_path / "records").glob("*.json")]
+    assert [r["name"] for r in stored] == ["parse 0"]  # not recorded as a failed run
+
+
+def test_the_cli_reports_ctrl_c_inside_a_numba_kernel_as_an_interrupt(monkeypatch, capsys):
+    def sweep_interrupted_in_a_kernel(args):
+        raise SystemError("CPUDispatcher returned a result with an exception set") \
+            from KeyboardInterrupt()
+
+    def failed_otherwise(args):
+        raise SystemError("a bug")
+
+    monkeypatch.setattr(sweep, "run", sweep_interrupted_in_a_kernel)
+    assert cli.main(["sweep", "examples/step_response.toml", "--out", "x"]) == 130
+    assert "minetwin sweep: interrupted" in capsys.readouterr().err
+    monkeypatch.setattr(sweep, "run", failed_otherwise)
+    with pytest.raises(SystemError, match="a bug"):  # not every SystemError is an interrupt
+        cli.main(["sweep", "examples/step_response.toml", "--out", "x"])
 
 
 def test_a_restarted_batch_skips_the_runs_its_store_holds(tmp_path):

@@ -62,6 +62,27 @@ def test_a_failing_component_stops_the_run_and_keeps_the_data():
     assert master.timeseries.index[-1] == 2.0
 
 
+class InterruptedKernel(Component):
+    """Fails as a numba kernel does when SIGINT lands while it boxes its result."""
+
+    name = "kernel"
+
+    def step(self, t, dt):
+        if t >= 1.5:
+            raise SystemError("CPUDispatcher(<function _slot_sums>) returned a result with an "
+                              "exception set") from KeyboardInterrupt()
+
+
+def test_ctrl_c_inside_a_numba_kernel_stops_the_run_instead_of_failing_the_component():
+    master = Master(step=0.5, progress=False)
+    master.add(Source())
+    master.add(InterruptedKernel())
+    with pytest.raises(KeyboardInterrupt) as raised:
+        master.run(until=5.0)
+    assert isinstance(raised.value.__cause__, SystemError)
+    assert master.timeseries.index[-1] == 1.5  # as a failing component keeps its data
+
+
 def test_bad_wiring_is_refused():
     master = Master(step=1.0, progress=False)
     source = master.add(Source())
