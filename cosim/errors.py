@@ -104,30 +104,32 @@ def check_finite_range(field, values, low=None, high=None, *, low_open=False,
     return arr
 
 
-def interrupted(exc: BaseException) -> bool:
-    """True if ``exc`` is or was caused by a ``KeyboardInterrupt`` (Ctrl-C, SIGINT).
+def interruption(exc: BaseException) -> BaseException | None:
+    """The ``KeyboardInterrupt`` (Ctrl-C, SIGINT) or ``SystemExit`` (a signal handler's
+    ``sys.exit``) that ``exc`` is or was caused by; None if neither.
 
-    A SIGINT that lands while a numba kernel boxes its result comes out of the
-    call as ``SystemError("... returned a result with an exception set")``
-    with the ``KeyboardInterrupt`` as its cause (6 of 100 SIGINTs sent into a
-    tight loop of calls of a kernel returning a float and an array, numba
-    0.68 on CPython 3.11).
+    A signal whose handler raises, landing while a numba kernel boxes its result,
+    comes out of the call as ``SystemError("... returned a result with an exception
+    set")`` with the handler's exception as its cause (6 of 100 SIGINTs sent into a
+    tight loop of calls of a kernel returning a float and an array, numba 0.68 on
+    CPython 3.11).
     """
     seen = set()
     while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
-            return True
+        if isinstance(exc, (KeyboardInterrupt, SystemExit)):
+            return exc
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
-    return False
+    return None
 
 
 def raise_if_interrupted(exc: BaseException) -> None:
-    """Raise ``KeyboardInterrupt`` (from ``exc``) if ``exc`` is ``interrupted``.
+    """Raise again (from ``exc``) the ``interruption`` that caused ``exc``, if any.
 
     Code that records a component's or a task's ``Exception`` as a failure
-    calls this first, so that Ctrl-C stops the run instead of becoming one
-    more failed step.
+    calls this first, so that Ctrl-C or a stopping signal stops the run instead
+    of becoming one more failed step.
     """
-    if interrupted(exc):
-        raise KeyboardInterrupt from exc
+    found = interruption(exc)
+    if found is not None:
+        raise type(found)(*found.args) from exc

@@ -12,7 +12,7 @@ import argparse
 import importlib
 import sys
 
-from cosim.errors import ValidationError, interrupted
+from cosim.errors import ValidationError, interruption
 
 COMMAND_MODULES = (
     "minetwin.commands.simulate",
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"minetwin {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, SystemError) as exc:  # SystemError: Ctrl-C inside a numba kernel
-        if not interrupted(exc):
+        if not isinstance(interruption(exc), KeyboardInterrupt):
             raise
         print(f"minetwin {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -83,6 +83,24 @@ def test_ctrl_c_inside_a_numba_kernel_stops_the_run_instead_of_failing_the_compo
     assert master.timeseries.index[-1] == 1.5  # as a failing component keeps its data
 
 
+class StoppedInKernel(Component):
+    """Fails as a numba kernel does when SIGTERM, handled by ``sys.exit(0)``, lands in it."""
+
+    name = "kernel"
+
+    def step(self, t, dt):
+        raise SystemError("CPUDispatcher returned a result with an exception set") \
+            from SystemExit(0)
+
+
+def test_a_stopping_signal_inside_a_numba_kernel_exits_as_its_handler_asked():
+    master = Master(step=0.5, progress=False)
+    master.add(StoppedInKernel())
+    with pytest.raises(SystemExit) as raised:
+        master.run(until=5.0)
+    assert raised.value.code == 0
+
+
 def test_bad_wiring_is_refused():
     master = Master(step=1.0, progress=False)
     source = master.add(Source())
