@@ -76,6 +76,11 @@ def _assert_same_arrays(a: dict, b: dict) -> None:
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
 
 
+def _unfinished(design_folder: Path, keys: set[str]) -> set[str]:
+    """The runs among ``keys`` that have written no record yet."""
+    return {key for key in keys if not (design_folder / "runs" / f"{key}.json").exists()}
+
+
 def test_a_dem_design_on_ray_with_a_killed_worker_equals_the_local_one(cluster, tmp_path):
     from minetwin.ray_executor import RayExecutor
 
@@ -92,22 +97,27 @@ def test_a_dem_design_on_ray_with_a_killed_worker_equals_the_local_one(cluster, 
     killed = None
     deadline = time.monotonic() + 300
     while thread.is_alive() and killed is None and time.monotonic() < deadline:
-        # a run is past its first checkpoint: kill the worker process under it
-        if list((remote / "partial").glob("*/ckpt_*.run.npz")):
-            running = cluster.task_workers("call")
-            if running:
-                killed = running[0]
-                os.kill(killed, signal.SIGKILL)
+        # a run is past its first checkpoint: kill the worker processes under the runs.
+        # Every one of them, as nothing tells which worker runs which: killing one, a
+        # loaded run once hit the other run, which had no checkpoint yet
+        past_a_checkpoint = {p.parent.name for p in (remote / "partial").glob("*/ckpt_*.run.npz")}
+        if _unfinished(remote, past_a_checkpoint):
+            for pid in cluster.task_workers("call"):
+                os.kill(pid, signal.SIGKILL)
+            # a run's record is written within its task, so a run with no record now
+            # was under a killed worker (and not one that ended before the kill)
+            killed = next(iter(_unfinished(remote, past_a_checkpoint)), None)
         time.sleep(0.2)
     thread.join(timeout=600)
     executor.close()
-    assert killed is not None, "no run was under way to kill"
+    assert killed is not None, "no run past a checkpoint was under way to kill"
     manifest = outcome["manifest"]
     assert {r["status"] for r in manifest["runs_finished"]} == {"done"}
-    records = [json.loads(p.read_text()) for p in sorted((remote / "runs").glob("*.json"))]
+    records = {r["key"]: r for r in (json.loads(p.read_text())
+                                     for p in sorted((remote / "runs").glob("*.json")))}
     assert len(records) == len(design.runs)
     # the killed run was run again from its checkpoint, not from scratch
-    assert any(r["resumed_at_s"] for r in records)
+    assert records[killed]["resumed_at_s"]  # the simulated times it was resumed at
     _assert_same_arrays(_arrays(local / "runs"), _arrays(remote / "runs"))
     _assert_same_arrays(_arrays(local / "states"), _arrays(remote / "states"))
 
