@@ -62,40 +62,36 @@ def test_a_failing_component_stops_the_run_and_keeps_the_data():
     assert master.timeseries.index[-1] == 2.0
 
 
-class InterruptedKernel(Component):
-    """Fails as a numba kernel does when SIGINT lands while it boxes its result."""
+class SignalledKernel(Component):
+    """Fails from ``t_s`` on as a numba kernel does when a signal whose handler raises
+    ``cause`` (SIGINT: KeyboardInterrupt; a SIGTERM handler's sys.exit: SystemExit)
+    lands while it boxes its result."""
 
     name = "kernel"
 
+    def __init__(self, cause, t_s=0.0):
+        super().__init__()
+        self.cause, self.t_s = cause, t_s
+
     def step(self, t, dt):
-        if t >= 1.5:
+        if t >= self.t_s:
             raise SystemError("CPUDispatcher(<function _slot_sums>) returned a result with an "
-                              "exception set") from KeyboardInterrupt()
+                              "exception set") from self.cause
 
 
 def test_ctrl_c_inside_a_numba_kernel_stops_the_run_instead_of_failing_the_component():
     master = Master(step=0.5, progress=False)
     master.add(Source())
-    master.add(InterruptedKernel())
+    master.add(SignalledKernel(KeyboardInterrupt(), t_s=1.5))
     with pytest.raises(KeyboardInterrupt) as raised:
         master.run(until=5.0)
     assert isinstance(raised.value.__cause__, SystemError)
     assert master.timeseries.index[-1] == 1.5  # as a failing component keeps its data
 
 
-class StoppedInKernel(Component):
-    """Fails as a numba kernel does when SIGTERM, handled by ``sys.exit(0)``, lands in it."""
-
-    name = "kernel"
-
-    def step(self, t, dt):
-        raise SystemError("CPUDispatcher returned a result with an exception set") \
-            from SystemExit(0)
-
-
 def test_a_stopping_signal_inside_a_numba_kernel_exits_as_its_handler_asked():
     master = Master(step=0.5, progress=False)
-    master.add(StoppedInKernel())
+    master.add(SignalledKernel(SystemExit(0)))
     with pytest.raises(SystemExit) as raised:
         master.run(until=5.0)
     assert raised.value.code == 0
