@@ -14,22 +14,15 @@ import math
 import os
 import secrets
 import signal
-import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+from minetwin.ports import free_port
 from opcua_protocol import APPLICATION_URI_CLIENT, NAMESPACE_URI
 from opcua_server.security import (ROLES, ensure_certificate, pki_paths, trust_certificate,
                                    write_users)
-
-
-def free_port() -> int:
-    """A TCP port free on 127.0.0.1 right now."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def prepare_state(root: Path) -> dict:
@@ -105,8 +98,24 @@ class ManagedProcess:
         return self.proc.returncode
 
 
+PORT_ATTEMPTS = 3
+"""Ports a ``ServerProcess`` tries when another process took the free port it chose
+before the server bound it."""
+
+
+def _size(path: Path) -> int:
+    return path.stat().st_size if path.exists() else 0
+
+
+def _read_from(path: Path, offset: int) -> str:
+    with open(path, "rb") as log:
+        log.seek(offset)
+        return log.read().decode(errors="replace")
+
+
 class ServerProcess(ManagedProcess):
-    """``minetwin serve-800xa`` on 127.0.0.1 and a free port.
+    """``minetwin serve-800xa`` on 127.0.0.1 and a free port (another one if that
+    port was taken before the server bound it, unless ``port`` is given).
 
     ``until``: the server's clock freezes at that simulation time (``--until``);
     ``clock_frozen()`` tells when it has.
@@ -118,19 +127,28 @@ class ServerProcess(ManagedProcess):
         workdir = Path(workdir)
         self.state = state
         self.until, self.speed, self.lockstep = until, speed, lockstep
-        self.port = port or free_port()
         self.ledger = workdir / "ledger.json"
         ready = workdir / "server.ready"
-        ready.unlink(missing_ok=True)
-        args = minetwin_command() + ["serve-800xa", "--port", str(self.port), "--host", "127.0.0.1",
-                              "--state-dir", str(state["server_state"]), "--speed", str(speed),
-                              "--ledger", str(self.ledger), "--ready-file", str(ready)]
-        args += ["--lockstep"] if lockstep else []
-        args += ["--insecure"] if insecure else []
-        args += ["--config", str(config)] if config else []
-        args += ["--until", str(until)] if until is not None else []
-        super().__init__(args, workdir / "server.log")
-        self.url = self.wait_for_file(ready).strip()
+        options = ["--host", "127.0.0.1", "--state-dir", str(state["server_state"]),
+                   "--speed", str(speed), "--ledger", str(self.ledger), "--ready-file", str(ready)]
+        options += ["--lockstep"] if lockstep else []
+        options += ["--insecure"] if insecure else []
+        options += ["--config", str(config)] if config else []
+        options += ["--until", str(until)] if until is not None else []
+        for attempt in range(1, PORT_ATTEMPTS + 1):
+            self.port = port or free_port()
+            ready.unlink(missing_ok=True)
+            log_start = _size(workdir / "server.log")
+            super().__init__(minetwin_command() + ["serve-800xa", "--port", str(self.port), *options],
+                             workdir / "server.log")
+            try:
+                self.url = self.wait_for_file(ready).strip()
+                return
+            except RuntimeError:
+                self.log.close()
+                taken = "address already in use" in _read_from(self.log_path, log_start)
+                if port or not taken or attempt == PORT_ATTEMPTS:
+                    raise
 
 
     def clock_frozen(self) -> bool:

@@ -282,6 +282,18 @@ class TrustListValidator:
             raise
 
 
+class ListenError(Exception):
+    """The server could not listen on its host and port."""
+
+
+class _StartErrorShownByCaller(logging.Filter):
+    """asyncua logs a failed start (a port in use) with a traceback and then raises
+    it; ``serve-800xa`` reports the same error in one line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "error starting server" not in record.getMessage()
+
+
 class PlantServer:
     """asyncua server publishing a ``PlantProcess``.
 
@@ -378,7 +390,14 @@ class PlantServer:
             methods_by_role=self._methods_by_role, allow_none_sessions=self.insecure)
         if not self.insecure:
             server._policies.insert(0, RefuseNoneChannel())
-        await server.start()
+        start_error = _StartErrorShownByCaller()
+        logging.getLogger("asyncua.server.server").addFilter(start_error)
+        try:
+            await server.start()
+        except OSError as exc:  # the port is taken, or the host is not this machine's
+            raise ListenError(f"cannot serve on {self.host}:{self.port}: {exc}") from None
+        finally:
+            logging.getLogger("asyncua.server.server").removeFilter(start_error)
         await self._start_history()
         await self.publish()
 
@@ -950,7 +969,11 @@ async def serve(config: dict, *, speed: float = 1.0, insecure: bool = False,
     written, as on SIGUSR1."""
     plant = PlantServer(config, speed=speed, insecure=insecure, lockstep=lockstep,
                         until_s=until_s)
-    await plant.start()
+    try:
+        await plant.start()
+    except ListenError as exc:
+        print(f"minetwin serve-800xa: error: {exc}", file=sys.stderr)
+        return 1
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, plant.stop)

@@ -13,8 +13,7 @@ import time
 import pytest
 
 from opcua_server.audit import audit
-from minetwin.harness import (ServerProcess, StockpileProcess, drain_and_stop, free_port,
-                                  prepare_state)
+from minetwin.harness import ServerProcess, StockpileProcess, drain_and_stop, prepare_state
 
 SPEED = 10.0
 
@@ -56,7 +55,7 @@ class Relay:
     """TCP relay 127.0.0.1:port -> target; ``cut()`` drops all traffic until ``restore()``."""
 
     def __init__(self, target_port: int):
-        self.port = free_port()
+        self.port = None  # the relay binds port 0: the kernel's choice cannot be taken meanwhile
         self.target_port = target_port
         self.open = True
         self.writers = set()
@@ -69,7 +68,8 @@ class Relay:
     def _run(self, ready):
         asyncio.set_event_loop(self.loop)
         self.server = self.loop.run_until_complete(
-            asyncio.start_server(self._handle, "127.0.0.1", self.port))
+            asyncio.start_server(self._handle, "127.0.0.1", 0))
+        self.port = self.server.sockets[0].getsockname()[1]
         ready.set()
         self.loop.run_forever()
 

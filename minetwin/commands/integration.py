@@ -71,12 +71,12 @@ def run(args) -> int:
     from cosim.errors import ValidationError
     from cosim.storage import storage_class
     from opcua_server.audit import audit
+    from minetwin.ports import free_port
     from minetwin.harness import (
         ManagedProcess,
         ServerProcess,
         StockpileProcess,
         drain_and_stop,
-        free_port,
         minetwin_command,
         prepare_state,
     )

@@ -14,23 +14,18 @@ from __future__ import annotations
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from minetwin.ports import free_port
+
 MEMORY_BYTES = 1_500_000_000
 """Memory each node offers its tasks [bytes] (Ray's --memory)."""
 OBJECT_STORE_BYTES = 100_000_000
 """Object store of each node [bytes] (Ray's minimum is about 75 MB)."""
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
 
 
 def _ray_command() -> str:
