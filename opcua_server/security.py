@@ -188,35 +188,55 @@ def pki_paths(state_dir: Path) -> dict[str, Path]:
 
 
 SERVER_IP_ADDRESSES = ("127.0.0.1",)
-"""IP addresses in the server certificate's subjectAltName (the endpoint's host)."""
+"""IP addresses every server certificate's subjectAltName holds (the default endpoint's host)."""
 
 
-async def ensure_certificate(key_file: Path, cert_file: Path, app_uri: str, client: bool) -> bool:
+def server_host_names(endpoint_host: str) -> tuple[list, list[str]]:
+    """The IP addresses and DNS names a server certificate's subjectAltName must
+    hold (OPC UA Part 6, 6.2.2: the names clients reach the host by): 127.0.0.1
+    and localhost, the machine's host name, and the endpoint's host (an address
+    or a name; not a wildcard bind address such as 0.0.0.0)."""
+    import ipaddress
+    import socket
+
+    ips = [ipaddress.ip_address(a) for a in SERVER_IP_ADDRESSES]
+    names = ["localhost", socket.gethostname()]
+    try:
+        ip = ipaddress.ip_address(endpoint_host)
+    except ValueError:
+        names.append(endpoint_host)
+    else:
+        if not ip.is_unspecified:
+            ips.append(ip)
+    return list(dict.fromkeys(ips)), list(dict.fromkeys(names))
+
+
+async def ensure_certificate(key_file: Path, cert_file: Path, app_uri: str, client: bool,
+                             endpoint_host: str = "127.0.0.1") -> bool:
     """Generate a self-signed key and certificate if missing; True if generated.
 
-    subjectAltName: the application URI, DNS ``localhost`` and, for the
-    server, IP ``127.0.0.1`` (the address its endpoint advertises). An expired
-    certificate, or a server certificate without that IP (made by an earlier
-    version), is replaced (same key).
+    subjectAltName: the application URI and DNS ``localhost``; a server's also
+    holds ``server_host_names(endpoint_host)``. An expired certificate, or a server
+    certificate that lacks one of those names (made by an earlier version, or
+    before the server moved to another host), is replaced (same key).
     """
-    import ipaddress
-
     from asyncua.crypto.cert_gen import (dump_private_key_as_pem, generate_private_key,
                                          generate_self_signed_app_certificate)
     from cryptography import x509
     from cryptography.hazmat.primitives.serialization import Encoding, load_pem_private_key
     from cryptography.x509.oid import ExtendedKeyUsageOID
 
-    ips = [] if client else [ipaddress.ip_address(a) for a in SERVER_IP_ADDRESSES]
+    ips, dns_names = ([], ["localhost"]) if client else server_host_names(endpoint_host)
     if key_file.exists() and cert_file.exists():
         cert = x509.load_der_x509_certificate(cert_file.read_bytes())
         try:
             names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
-            has_ips = set(ips) <= set(names.get_values_for_type(x509.IPAddress))
+            has_names = (set(ips) <= set(names.get_values_for_type(x509.IPAddress))
+                         and set(dns_names) <= set(names.get_values_for_type(x509.DNSName)))
         except x509.ExtensionNotFound:
-            has_ips = False
+            has_names = False
         expired = cert.not_valid_after_utc <= datetime.now(timezone.utc)
-        if has_ips and not expired:
+        if has_names and not expired:
             return False
         key = load_pem_private_key(key_file.read_bytes(), password=None)
     else:
@@ -226,8 +246,8 @@ async def ensure_certificate(key_file: Path, cert_file: Path, app_uri: str, clie
     os.chmod(key_file, 0o600)
     use = [ExtendedKeyUsageOID.CLIENT_AUTH] if client else [ExtendedKeyUsageOID.SERVER_AUTH,
                                                             ExtendedKeyUsageOID.CLIENT_AUTH]
-    alt_names = [x509.UniformResourceIdentifier(app_uri), x509.DNSName("localhost")]
-    alt_names += [x509.IPAddress(ip) for ip in ips]
+    alt_names = [x509.UniformResourceIdentifier(app_uri)]
+    alt_names += [x509.DNSName(name) for name in dns_names] + [x509.IPAddress(ip) for ip in ips]
     cert = generate_self_signed_app_certificate(
         key, app_uri, {"organizationName": "MineTwin", "commonName": app_uri}, alt_names,
         extended=use, days=365)

@@ -357,8 +357,13 @@ class PlantServer:
         await server.set_application_uri(APPLICATION_URI_SERVER)
         server.set_identity_tokens([ua.UserNameIdentityToken])
         pki = pki_paths(self.state_dir)
-        if await ensure_certificate(pki["key"], pki["cert"], APPLICATION_URI_SERVER, client=False):
-            print(f"serve-800xa: generated a self-signed server certificate {pki['cert']}",
+        replacing = pki["cert"].exists()
+        if await ensure_certificate(pki["key"], pki["cert"], APPLICATION_URI_SERVER, client=False,
+                                    endpoint_host=self.host):
+            print(f"serve-800xa: replaced the server certificate {pki['cert']} (it had expired or "
+                  f"lacked a name of this host; a client that pinned the old one needs this one)"
+                  if replacing else
+                  f"serve-800xa: generated a self-signed server certificate {pki['cert']}",
                   file=sys.stderr)
         pki["trusted"].mkdir(parents=True, exist_ok=True)
         await server.load_certificate(str(pki["cert"]))

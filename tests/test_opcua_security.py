@@ -428,3 +428,38 @@ def test_an_outflow_report_longer_than_the_bound_is_refused_at_once(plant):
     assert f"tracking_ids: must be at most {MAX_REPORT_ROWS} per report" in \
         result.OutputArguments[0].Value
     assert elapsed < 5.0
+
+
+def _alt_names(cert_file):
+    from cryptography import x509
+
+    cert = x509.load_der_x509_certificate(cert_file.read_bytes())
+    names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    return (set(names.get_values_for_type(x509.DNSName)),
+            {str(ip) for ip in names.get_values_for_type(x509.IPAddress)})
+
+
+def test_a_server_certificate_names_every_host_it_is_reached_by_and_follows_a_moved_host(tmp_path):
+    import socket
+
+    from opcua_protocol import APPLICATION_URI_SERVER
+
+    pki = pki_paths(tmp_path / "server")
+    assert asyncio.run(ensure_certificate(pki["key"], pki["cert"], APPLICATION_URI_SERVER, False))
+    dns, ips = _alt_names(pki["cert"])
+    assert dns == {"localhost", socket.gethostname()} and ips == {"127.0.0.1"}
+    key = pki["key"].read_bytes()
+    assert not asyncio.run(ensure_certificate(pki["key"], pki["cert"], APPLICATION_URI_SERVER,
+                                              False))  # nothing missing: kept
+
+    assert asyncio.run(ensure_certificate(pki["key"], pki["cert"], APPLICATION_URI_SERVER, False,
+                                          endpoint_host="plant-gateway.example"))
+    dns, ips = _alt_names(pki["cert"])
+    assert "plant-gateway.example" in dns and ips == {"127.0.0.1"}
+    assert pki["key"].read_bytes() == key  # a new certificate of the same key
+
+    assert asyncio.run(ensure_certificate(pki["key"], pki["cert"], APPLICATION_URI_SERVER, False,
+                                          endpoint_host="10.1.2.3"))
+    assert _alt_names(pki["cert"])[1] == {"127.0.0.1", "10.1.2.3"}
+    assert not asyncio.run(ensure_certificate(pki["key"], pki["cert"], APPLICATION_URI_SERVER,
+                                              False, endpoint_host="0.0.0.0"))  # a wildcard: no name
