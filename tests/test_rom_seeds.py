@@ -48,3 +48,15 @@ def test_a_seed_count_outside_1_to_100_is_refused(tmp_path):
         cwd=ROOT, capture_output=True, text=True)
     assert result.returncode == 2 and "rom_seeds" in result.stderr, result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_a_negative_landing_spread_is_refused_by_name(tmp_path):
+    """``--landing-spread`` reaches the ROM storage, whose check names it."""
+    result = subprocess.run(
+        [sys.executable, "-m", "minetwin.cli", "rom", "evaluate", "--model", str(DEFAULT_MODEL),
+         "--data", str(HELDOUT), "--out", str(tmp_path), "--landing-spread", "-1",
+         "--workers", "1"],
+        cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode == 2 and "landing_spread" in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr
+    assert not (tmp_path / "summary.json").exists()

@@ -84,6 +84,7 @@ def test_the_replayed_field_replaces_the_prediction():
 def test_the_bound_on_a_held_out_scene(tmp_path):
     code = transport_bound.main(["--data", str(HELDOUT), "--scene", "heldout_q2000",
                                  "--half-window", "180", "--packing", "none",
+                                 "--landing-spread", "0", "--landing-spread", "3",
                                  "--rom-seeds", "1", "--out", str(tmp_path)])
     assert code == 0
     assert (tmp_path / "transport_bound.png").stat().st_size > 0
@@ -94,10 +95,12 @@ def test_the_bound_on_a_held_out_scene(tmp_path):
     assert result["packing_density_kg_m2"] == pytest.approx(564.2, abs=0.05)
     entries = [result["dem_noise_floor"], result["rom"], *result["bounds"]]
     # every pair once; the ROM against each replica; each replica's field against the others
-    counts = [replicas * (replicas - 1) // 2, replicas, replicas * (replicas - 1)]
+    counts = [replicas * (replicas - 1) // 2, replicas] + [replicas * (replicas - 1)] * 2
     assert [e["tracking_error"]["n"] for e in entries] == counts
     assert result["bounds"][0]["half_window_s"] == 180.0
     assert result["bounds"][0]["packing"] == "none"
+    assert [b["landing_spread_m"] for b in result["bounds"]] == [0.0, 3.0]
+    assert result["bounds"][1]["tracking_error"] != result["bounds"][0]["tracking_error"]
     for entry in entries:
         full, merged = entry["tracking_error"], entry["lumped"]
         assert 0.0 <= full["min"] <= full["mean"] <= full["max"] <= 1.0
@@ -121,6 +124,7 @@ def test_the_bound_on_a_held_out_scene(tmp_path):
     (["--packing", "tight"], "--packing"),
     (["--rom-seeds", "0"], "rom_seeds"),
     (["--packing-density", "0"], "--packing-density"),
+    (["--landing-spread", "-1"], "--landing-spread"),
 ])
 def test_bad_input_exits_2_naming_the_field(argument, field, tmp_path, capsys):
     assert transport_bound.main(["--data", str(HELDOUT), "--out", str(tmp_path),

@@ -70,6 +70,10 @@ def register(subparsers) -> None:
                                "of the ROM's field rests (RomStorage's rest_fraction; default: "
                                "the model file's, fitted at rom train, 0.08 for the shipped "
                                "paper-scale ROM; 0: off)")
+    evaluate.add_argument("--landing-spread", type=float, default=None, metavar="M",
+                          help="standard deviation [m] of a normal offset to where the "
+                               "ROM's surface DEM leaves each particle (RomStorage's "
+                               "landing_spread; default 0: none)")
     evaluate.add_argument("--rom-seeds", type=int, default=1, metavar="N",
                           help="run the ROM with seeds 0 .. N-1 on every scene and score "
                                "the mean over them and the DEM replicas (default 1: seed 0; "
@@ -170,8 +174,15 @@ def run_evaluate(args) -> int:
     from surrogate.rom.evaluate import (build_data, check_rom_seeds, evaluate, train,
                                         write_summary)
     from surrogate.rom.model import RomModel
+    from surrogate.rom.storage import RomStorage
 
     check_rom_seeds(args.rom_seeds)  # before a design is built or laid out
+    rom_options = {"surface": args.surface,
+                   **{k: getattr(args, k)
+                      for k in ("transport", "packing", "velocity_model", "packing_density",
+                                "rest_fraction", "landing_spread")
+                      if getattr(args, k) is not None}}
+    RomStorage(**rom_options)  # the storage checks its options, here rather than in a worker
     if args.quick:
         if not args.out:
             raise ValidationError("--out", "a directory when --quick is given")
@@ -197,11 +208,7 @@ def run_evaluate(args) -> int:
             data = Path(args.out) / "scenes"
     with executors.make(args) as executor:  # the held-out scenes are scored in parallel
         summary = evaluate(model, data, progress=_progress,
-                           rom_options={"surface": args.surface,
-                                        **{k: getattr(args, k)
-                                           for k in ("transport", "packing", "velocity_model",
-                                                     "packing_density", "rest_fraction")
-                                           if getattr(args, k) is not None}},
+                           rom_options=rom_options,
                            executor=executor, rom_seeds=args.rom_seeds)
     # the file scored, so that `fidelity calibrate` ties the ROM card to it
     model_file = Path(args.model) if args.model else data / "rom_model.npz"

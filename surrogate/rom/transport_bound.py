@@ -34,7 +34,7 @@ For each scene it reports, from ``evaluate.ensemble_score`` and
 - ``dem_noise_floor``: the replicas against each other, every pair once;
 - ``rom``: the shipped ROM (its fitted field, its own density), every ROM seed
   against every replica;
-- ``bounds``: per (half window, packing) the ROM with each replica's field,
+- ``bounds``: per (half window, packing, landing spread) the ROM with each replica's field,
   every (replica, ROM seed) against each other replica;
 
 each as the spread (mean, min, max, std, n) of the tracking error, of the same
@@ -46,10 +46,11 @@ Run::
     python -m surrogate.rom.transport_bound --data surrogate/rom/data/paper_heldout \\
         --out DIR [--scene S] [--half-window 0 --half-window 15 ...] \\
         [--packing none --packing avalanche] [--packing-density KG_M2] [--rom-seeds N] \\
-        [--model FILE]
+        [--landing-spread 0 --landing-spread 3 ...] [--model FILE]
 
 Defaults: half windows 0, 15 and 180 s (the sample nearest t, a 30 s mean, the
-whole scene), packings "none" and "avalanche" (the shipped one), 2 ROM seeds.
+whole scene), packings "none" and "avalanche" (the shipped one), landing spread
+0 m (``RomStorage(landing_spread=...)``), 2 ROM seeds.
 Writes ``transport_bound.json`` and ``transport_bound.png`` and prints one
 table per scene.
 """
@@ -57,6 +58,7 @@ table per scene.
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 import warnings
 from pathlib import Path
@@ -78,6 +80,10 @@ ROM_SEEDS = 2
 
 PACKINGS_SCORED = ("none", "avalanche")
 """Default packings of the ROM with the DEM's field (``RomStorage(packing=...)``)."""
+
+LANDING_SPREADS = (0.0,)
+"""Default landing spreads [m] of the ROM with the DEM's field
+(``RomStorage(landing_spread=...)``): none."""
 
 TRAINING_DESIGN = Path(__file__).resolve().parent / "data" / "paper_design"
 """The shipped model's training design, where the default packing density is measured."""
@@ -159,10 +165,12 @@ def _run(heldout: Path, model, seed: int, options: dict, build=None) -> dict:
 
 
 def bound_scene(model, heldout: Path, packing_density: float, half_windows=HALF_WINDOWS,
-                packings=PACKINGS_SCORED, rom_seeds: int = ROM_SEEDS, progress=None) -> dict:
+                packings=PACKINGS_SCORED, rom_seeds: int = ROM_SEEDS, progress=None,
+                landing_spreads=LANDING_SPREADS) -> dict:
     """The floor, the shipped ROM and the bounds (module docstring) on the held-out
     scene folder ``heldout`` (``evaluate``'s layout), the ROM with the DEM's field
-    packed at ``packing_density`` [kg/m^2]."""
+    packed at ``packing_density`` [kg/m^2], one bound per (half window, packing,
+    landing spread [m], ``RomStorage(landing_spread=...)``)."""
     replicas = evaluate.stable_replicas(heldout)
     references = [evaluate.outflow_of(run) for run in replicas]
     if len(references) < 2:
@@ -180,30 +188,32 @@ def bound_scene(model, heldout: Path, packing_density: float, half_windows=HALF_
               "rom": _scored([(_run(heldout, model, seed, {}), references)
                               for seed in range(rom_seeds)], inflow_ids, t0, t1),
               "bounds": []}
-    for half_window in half_windows:
-        for packing in packings:
-            if progress is not None:
-                progress(f"{heldout.name}: the DEM's field, half window {half_window:g} s, "
-                         f"packing {packing}")
-            runs = []
-            for k, replica in enumerate(replicas):
-                def build(replica=replica, half_window=half_window, **options):
-                    return ReplayedField(field_time=replica["field_time"],
-                                         field_velocity=replica["field_velocity"],
-                                         field_mass=replica["field_mass"],
-                                         half_window=half_window, **options)
-                others = references[:k] + references[k + 1:]
-                options = {"packing": packing, "packing_density": packing_density}
-                runs += [(_run(heldout, model, seed, options, build), others)
-                         for seed in range(rom_seeds)]
-            result["bounds"].append({"half_window_s": float(half_window), "packing": packing,
-                                     **_scored(runs, inflow_ids, t0, t1)})
+    for half_window, packing, spread in itertools.product(half_windows, packings,
+                                                          landing_spreads):
+        if progress is not None:
+            progress(f"{heldout.name}: the DEM's field, half window {half_window:g} s, "
+                     f"packing {packing}, landing spread {spread:g} m")
+        runs = []
+        for k, replica in enumerate(replicas):
+            def build(replica=replica, half_window=half_window, **options):
+                return ReplayedField(field_time=replica["field_time"],
+                                     field_velocity=replica["field_velocity"],
+                                     field_mass=replica["field_mass"],
+                                     half_window=half_window, **options)
+            others = references[:k] + references[k + 1:]
+            options = {"packing": packing, "packing_density": packing_density,
+                       "landing_spread": spread}
+            runs += [(_run(heldout, model, seed, options, build), others)
+                     for seed in range(rom_seeds)]
+        result["bounds"].append({"half_window_s": float(half_window), "packing": packing,
+                                 "landing_spread_m": float(spread),
+                                 **_scored(runs, inflow_ids, t0, t1)})
     return result
 
 
 def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=PACKINGS_SCORED,
           rom_seeds: int = ROM_SEEDS, model=None, packing_density: float | None = None,
-          progress=None) -> dict:
+          progress=None, landing_spreads=LANDING_SPREADS) -> dict:
     """``bound_scene`` on ``scenes`` (default all) of the exported held-out design
     ``data``: ``{scene: result}``. ``packing_density`` [kg/m^2] defaults to the
     DEM's mean settled density on ``TRAINING_DESIGN``."""
@@ -214,6 +224,8 @@ def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=PACKINGS_SCORED
     rom_seeds = evaluate.check_rom_seeds(rom_seeds)
     for half_window in half_windows:
         check_finite_range("--half-window", half_window, 0.0, unit="s")
+    for spread in landing_spreads:
+        check_finite_range("--landing-spread", spread, 0.0, unit="m")
     for packing in packings:
         if packing not in PACKINGS:
             raise ValidationError("--packing", f"one of {PACKINGS}", f"got {packing!r}")
@@ -224,7 +236,7 @@ def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=PACKINGS_SCORED
     model = RomModel.load(model or DEFAULT_MODEL)
     with heldout_layout.scenes_laid_out(data, scenes) as (folder, names):
         return {name: bound_scene(model, folder / name, packing_density, half_windows,
-                                  packings, rom_seeds, progress)
+                                  packings, rom_seeds, progress, landing_spreads)
                 for name in names}
 
 
@@ -234,6 +246,11 @@ def _row(name: str, entry: dict) -> str:
             f"{merged['mean']:.3f}   " + " ".join(f"{v:.2f}" for v in entry["window_distance"]))
 
 
+def _spread_label(entry: dict) -> str:
+    spread = entry.get("landing_spread_m", 0.0)
+    return f", landing sd {spread:g} m" if spread else ""
+
+
 def report(scene: str, result: dict) -> str:
     """The printed table of one scene."""
     lines = [f"{scene} ({result['replicas']} DEM replicas, ROM seeds 0-{result['rom_seeds'] - 1}, "
@@ -241,7 +258,8 @@ def report(scene: str, result: dict) -> str:
              f"error mean (min-max), inflow ids as one, per {result['window_s']:g} s window",
              _row("DEM noise floor", result["dem_noise_floor"]),
              _row("ROM, its fitted field", result["rom"])]
-    lines += [_row(f"ROM, DEM field ±{b['half_window_s']:g} s, {b['packing']}", b)
+    lines += [_row(f"ROM, DEM field ±{b['half_window_s']:g} s, {b['packing']}"
+                   + _spread_label(b), b)
               for b in result["bounds"]]
     return "\n".join(lines)
 
@@ -255,8 +273,8 @@ def plot(results: dict, path: Path) -> None:
         entries = [("DEM noise floor", result["dem_noise_floor"], "tab:grey"),
                    ("ROM, its fitted field", result["rom"], "tab:blue")]
         colours = plt.get_cmap("Greens")(np.linspace(0.4, 0.9, max(len(result["bounds"]), 1)))
-        entries += [(f"DEM field ±{b['half_window_s']:g} s, packing {b['packing']}", b,
-                     colours[k])
+        entries += [(f"DEM field ±{b['half_window_s']:g} s, packing {b['packing']}"
+                     + _spread_label(b), b, colours[k])
                     for k, b in enumerate(result["bounds"])]
         for k, (label, entry, colour) in enumerate(entries):
             spread = entry["tracking_error"]
@@ -294,6 +312,9 @@ def main(argv=None) -> int:
                         help="bulk density [kg/m^2] of the ROM with the DEM's field (default: "
                              "the DEM's mean settled density on the training design, "
                              "surrogate.rom.packing)")
+    parser.add_argument("--landing-spread", action="append", type=float, default=None,
+                        help="RomStorage's landing_spread [m], >= 0, of the ROM with the DEM's "
+                             "field (repeatable; default 0)")
     parser.add_argument("--rom-seeds", type=int, default=ROM_SEEDS,
                         help=f"ROM seeds 0 .. N-1 per run, 1-100 ({ROM_SEEDS})")
     parser.add_argument("--model", default=None, help="ROM model file (default: the shipped one)")
@@ -305,7 +326,8 @@ def main(argv=None) -> int:
     try:
         results = bound(args.data, args.scene, args.half_window or HALF_WINDOWS,
                         args.packing or PACKINGS_SCORED, args.rom_seeds, args.model,
-                        args.packing_density, progress)
+                        args.packing_density, progress,
+                        args.landing_spread or LANDING_SPREADS)
     except (ValidationError, OSError) as error:
         print(f"transport_bound: error: {error}", file=sys.stderr)
         return 2
