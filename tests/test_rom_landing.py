@@ -53,3 +53,9 @@ def test_a_bad_run_exits_2_naming_the_field(run, field, tmp_path, capsys):
     assert landing.main(["--design", "reduced", "--run", run, "--out", str(tmp_path)]) == 2
     assert field in capsys.readouterr().err
     assert not (tmp_path / "landing.json").exists()
+
+
+def test_another_design_without_runs_exits_2_naming_run(tmp_path, capsys):
+    assert landing.main(["--design", "reduced", "--out", str(tmp_path)]) == 2
+    assert "--run" in capsys.readouterr().err
+    assert not (tmp_path / "landing.json").exists()

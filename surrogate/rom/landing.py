@@ -176,6 +176,9 @@ def main(argv=None) -> int:
         from surrogate.rom import paper_design as pd
 
         design = pd.get_design(args.design)
+        if not args.run and args.design != "paper":
+            raise ValidationError("--run", "given for a design other than paper (the default "
+                                  "measurements are on the paper design's piles)")
         runs = [parse_run(text) for text in args.run] if args.run else list(PAPER_RUNS)
         check_finite_range("--workers", args.workers, 1)
         piles = [p.name for p in design.piles]
