@@ -11,6 +11,7 @@ from surrogate.rom.container import Container
 from surrogate.rom.grid import Grid, mass_field
 from surrogate.rom.model import RomModel
 from surrogate.rom.storage import RomStorage
+from surrogate.rom.surface import surface_heights
 from surrogate.rom.surface_dem import SurfaceDem
 
 G = 9.81
@@ -260,8 +261,8 @@ def test_the_landing_spread_scatters_where_the_surface_dem_leaves_particles(spre
     ids = store.add(mass=np.full(400, 10.0), f=sizes.swebrec(), grade=0.5, hardness=1.0,
                     owner=1)
     mass = store.mass[store.slots(ids)]
-    storage._column_width(mass)
-    heights = np.zeros(int(round((CONTAINER.x_max - CONTAINER.x_min) / storage._width)))
+    heights = surface_heights(CONTAINER, storage._column_width(mass), np.empty((0, 2)),
+                              np.empty(0))  # the empty container's floor
     storage._land(ids, mass, np.column_stack((np.full(400, CONTAINER.inlet_x), np.ones(400))),
                   heights)
     x = storage._pos[:, 0]

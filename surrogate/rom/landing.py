@@ -59,6 +59,24 @@ FIRST_TRACKING_ID = 100_000
 """Tracking id of the first fed lot (above the laid-out piles' lots)."""
 
 
+def check_run(design, pile: str, rate: float, seconds, field: str = "") -> float:
+    """Refuse a measurement ``measure`` cannot make; returns the rate [kg/s]. Errors
+    name ``field`` (e.g. "--run": "--run", "--run rate", "--run seconds"), or
+    "pile", "rate" and "seconds" without one."""
+    from surrogate.rom import doe
+
+    piles = [p.name for p in design.piles]
+    if pile not in piles:
+        raise ValidationError(field or "pile", f"one of {piles}", f"got {pile!r}")
+    rate = float(check_finite_range(f"{field} rate".strip(), rate, 0.0, low_open=True,
+                                    unit="kg/s"))
+    if int(seconds) != seconds or seconds <= doe.BULK_AGE:
+        raise ValidationError(f"{field} seconds".strip(),
+                              f"a whole number of seconds above {doe.BULK_AGE:g}",
+                              f"got {seconds!r}")
+    return rate
+
+
 def measure(design, pile: str, rate: float, seconds: int, seed: int = 0, model=None,
             progress=None) -> dict:
     """One measurement (module docstring) on ``design``'s pile ``pile`` fed and drained
@@ -72,13 +90,7 @@ def measure(design, pile: str, rate: float, seconds: int, seed: int = 0, model=N
     from surrogate.rom.surface import column_width, deposit, surface_heights
     from surrogate.rom.surface_dem import SurfaceDem
 
-    rate = float(check_finite_range("rate", rate, 0.0, low_open=True, unit="kg/s"))
-    if int(seconds) != seconds or seconds <= doe.BULK_AGE:
-        raise ValidationError("seconds", f"a whole number of seconds above {doe.BULK_AGE:g}",
-                              f"got {seconds!r}")
-    if pile not in [p.name for p in design.piles]:
-        raise ValidationError("pile", f"one of {[p.name for p in design.piles]}",
-                              f"got {pile!r}")
+    rate = check_run(design, pile, rate, seconds)
     tic, cpu0 = time.perf_counter(), time.process_time()
     model = RomModel.load(model or DEFAULT_MODEL)
     container = model.container
@@ -181,12 +193,8 @@ def main(argv=None) -> int:
                                   "measurements are on the paper design's piles)")
         runs = [parse_run(text) for text in args.run] if args.run else list(PAPER_RUNS)
         check_finite_range("--workers", args.workers, 1)
-        piles = [p.name for p in design.piles]
         for pile, rate, seconds, _ in runs:  # refuse a bad run before any DEM starts
-            if pile not in piles:
-                raise ValidationError("--run", f"a pile of {piles}", f"got {pile!r}")
-            check_finite_range("--run rate", rate, 0.0, low_open=True, unit="kg/s")
-            check_finite_range("--run seconds", seconds, 5)
+            check_run(design, pile, rate, seconds, field="--run")
         calls = [(_task, {"design": args.design, "pile": pile, "rate": rate,
                           "seconds": seconds, "seed": seed, "model": args.model})
                  for pile, rate, seconds, seed in runs]

@@ -247,7 +247,7 @@ def _row(name: str, entry: dict) -> str:
 
 
 def _spread_label(entry: dict) -> str:
-    spread = entry.get("landing_spread_m", 0.0)
+    spread = entry["landing_spread_m"]
     return f", landing sd {spread:g} m" if spread else ""
 
 
