@@ -8,6 +8,7 @@ import pytest
 
 from cosim.errors import ValidationError
 from surrogate.rom import evaluate, heldout_layout, metrics, transport_bound
+from surrogate.rom.grid import Grid
 from surrogate.rom.model import RomModel
 from surrogate.rom.storage import DEFAULT_MODEL
 
@@ -81,10 +82,62 @@ def test_the_replayed_field_replaces_the_prediction():
     assert np.array_equal(storage._predicted(t, 2000.0, mass), expected)
 
 
+def test_a_projection_keeps_what_the_modes_span_and_drops_the_rest():
+    rng = np.random.default_rng(0)
+    modes = np.linalg.qr(rng.normal(size=(2 * 3 * 4, 3)))[0].T  # 3 orthonormal rows
+    inside = (rng.normal(size=(2, 3)) @ modes).reshape(2, 3, 4, 2)
+    across = rng.normal(size=(2, 3 * 4 * 2))
+    across -= (across @ modes.T) @ modes  # orthogonal to every mode
+    out = transport_bound.projected(inside + across.reshape(2, 3, 4, 2), modes)
+    assert np.allclose(out, inside, atol=1e-12)
+
+
+def test_the_first_modes_are_the_shipped_models_velocity_basis():
+    """``modes:4`` replays in the basis the shipped 4-mode fit predicts in."""
+    model = RomModel.load(DEFAULT_MODEL)
+    basis = transport_bound.velocity_basis()
+    own = model.arrays["velocity_modes"]  # (2 cells, 4), orthonormal columns
+    assert own.shape[1] == 4
+    # the same subspace (signs of SVD vectors are arbitrary): the projections agree
+    assert np.allclose(basis[:4].T @ basis[:4], own @ own.T, atol=1e-9)
+
+
+def test_the_fit_at_the_dem_state_is_the_models_prediction_there():
+    with heldout_layout.scenes_laid_out(HELDOUT, ["heldout_q2000"]) as (folder, _):
+        replica = evaluate.stable_replicas(folder / "heldout_q2000")[0]
+    model = RomModel.load(DEFAULT_MODEL)
+    storage = transport_bound.FittedAtDemState(model, field_time=replica["field_time"],
+                                               field_mass=replica["field_mass"],
+                                               half_window=0.0)
+    t = float(replica["field_time"][40])
+    own_mass = np.zeros((model.grid.ny, model.grid.nx))  # not what the field is taken at
+    expected = storage.predicted_field(np.float64(replica["field_mass"][40]), 2000.0, 0.0)
+    assert np.abs(expected).max() > 0.1
+    assert np.array_equal(storage._predicted(t, 2000.0, own_mass), expected)
+    with pytest.raises(ValidationError, match="field_mass"):
+        transport_bound.FittedAtDemState(model, field_time=[0.0],
+                                         field_mass=np.zeros((1, 2, 2)), half_window=0.0)
+
+
+def test_modes_need_a_model_on_the_training_designs_grid(tmp_path, capsys):
+    shipped = RomModel.load(DEFAULT_MODEL)
+    grid = Grid.covering(-10.0, 10.0, 0.0, 8.0, 1.0)
+    rng = np.random.default_rng(0)
+    small = RomModel(grid, 2, 2, 1.0, shipped.container).fit(
+        rng.uniform(0.0, 1.0, (6, grid.ny, grid.nx)), np.full(6, 100.0), np.zeros(6),
+        rng.normal(size=(6, grid.ny, grid.nx, 2)))
+    path = small.save(tmp_path / "small.npz")
+    assert transport_bound.main(["--data", str(HELDOUT), "--out", str(tmp_path / "out"),
+                                 "--model", str(path), "--field", "modes:4"]) == 2
+    assert "--field" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 def test_the_bound_on_a_held_out_scene(tmp_path):
     code = transport_bound.main(["--data", str(HELDOUT), "--scene", "heldout_q2000",
                                  "--half-window", "180", "--packing", "none",
                                  "--landing-spread", "0", "--landing-spread", "3",
+                                 "--field", "dem", "--field", "modes:4",
                                  "--rom-seeds", "1", "--out", str(tmp_path)])
     assert code == 0
     assert (tmp_path / "transport_bound.png").stat().st_size > 0
@@ -95,12 +148,15 @@ def test_the_bound_on_a_held_out_scene(tmp_path):
     assert result["packing_density_kg_m2"] == pytest.approx(564.2, abs=0.05)
     entries = [result["dem_noise_floor"], result["rom"], *result["bounds"]]
     # every pair once; the ROM against each replica; each replica's field against the others
-    counts = [replicas * (replicas - 1) // 2, replicas] + [replicas * (replicas - 1)] * 2
+    counts = [replicas * (replicas - 1) // 2, replicas] + [replicas * (replicas - 1)] * 4
     assert [e["tracking_error"]["n"] for e in entries] == counts
-    assert result["bounds"][0]["half_window_s"] == 180.0
-    assert result["bounds"][0]["packing"] == "none"
-    assert [b["landing_spread_m"] for b in result["bounds"]] == [0.0, 3.0]
+    assert {b["half_window_s"] for b in result["bounds"]} == {180.0}
+    assert {b["packing"] for b in result["bounds"]} == {"none"}
+    assert [(b["field"], b["landing_spread_m"]) for b in result["bounds"]] == [
+        ("dem", 0.0), ("dem", 3.0), ("modes:4", 0.0), ("modes:4", 3.0)]
     assert result["bounds"][1]["tracking_error"] != result["bounds"][0]["tracking_error"]
+    # the field projected on 4 modes moves the pile another way than the whole field
+    assert result["bounds"][2]["tracking_error"] != result["bounds"][0]["tracking_error"]
     for entry in entries:
         full, merged = entry["tracking_error"], entry["lumped"]
         assert 0.0 <= full["min"] <= full["mean"] <= full["max"] <= 1.0
@@ -125,6 +181,10 @@ def test_the_bound_on_a_held_out_scene(tmp_path):
     (["--rom-seeds", "0"], "rom_seeds"),
     (["--packing-density", "0"], "--packing-density"),
     (["--landing-spread", "-1"], "--landing-spread"),
+    (["--field", "fitted"], "--field"),
+    (["--field", "modes:0"], "--field"),
+    (["--field", "modes:x"], "--field"),
+    (["--field", "modes:100000"], "--field"),
 ])
 def test_bad_input_exits_2_naming_the_field(argument, field, tmp_path, capsys):
     assert transport_bound.main(["--data", str(HELDOUT), "--out", str(tmp_path),
