@@ -148,6 +148,10 @@ def _model_options(parser) -> None:
                         help="with --target flux: divide the flux by no more than the "
                              "training DEM's fitted fill of a cell carrying it (default: "
                              "off; surrogate.rom.model, 'Fitted fill')")
+    parser.add_argument("--registration", choices=("height",), default=None,
+                        help="fit the velocity on height-following levels, each column's "
+                             "at heights in units of the column's own (default: off, the "
+                             "fixed grid; surrogate.rom.model, 'Registered fit')")
 
 
 def _progress(message: str) -> None:
@@ -159,7 +163,8 @@ def run_train(args) -> int:
 
     model = train(args.data, args.out, args.mass_modes, args.velocity_modes, args.ridge,
                   progress=_progress, target=args.target, flux_floor=args.flux_floor,
-                  fill_law=args.fill_law, rest_fraction=args.rest_fraction)
+                  fill_law=args.fill_law, rest_fraction=args.rest_fraction,
+                  registration=args.registration)
     print(f"trained on {model.n_samples} samples, grid {model.grid.nx}x{model.grid.ny}, "
           f"modes {model.n_mass_modes}/{model.n_velocity_modes}, ridge {model.ridge:g}, "
           f"resting share {model.rest_fraction:g}; wrote {args.out}")
@@ -191,7 +196,8 @@ def run_evaluate(args) -> int:
             build_data(data, quick=True, seed=args.seed, progress=_progress, executor=executor)
         model = train(data, data / "rom_model.npz", args.mass_modes, args.velocity_modes,
                       args.ridge, progress=_progress, target=args.target,
-                      flux_floor=args.flux_floor, fill_law=args.fill_law)
+                      flux_floor=args.flux_floor, fill_law=args.fill_law,
+                      registration=args.registration)
         _progress(f"trained on {model.n_samples} samples; model {data / 'rom_model.npz'}")
     else:
         if not (args.model and args.data):

@@ -48,6 +48,7 @@ from surrogate.rom.grid import Grid, mean_field
 from surrogate.rom.model import (FLUX_FLOOR, FLUX_FLOORS, RomModel, flux_samples, pod_basis,
                                   pod_residual)
 from surrogate.rom.provenance import training_provenance
+from surrogate.rom.registration import register
 
 PERTURBATION = 1e-6
 """Initial-position perturbation [m] of the noise-floor DEM runs."""
@@ -332,18 +333,27 @@ MODEL_CANDIDATES = [(modes, velocity_modes, ridge)
                     for ridge in (1e-1, 1.0, 10.0, 100.0)]
 """(mass modes, velocity modes, ridge) tried by ``train``'s model selection."""
 
+REGISTERED_CANDIDATES = [(modes, velocity_modes, ridge) for modes in (2, 4, 8)
+                         for velocity_modes in (4, 8, 16, 32)
+                         for ridge in (1.0, 10.0, 100.0, 1000.0)]
+"""The candidates of a registered fit (``registration="height"``): up to 32
+velocity modes, as the registered fields spread over more modes than the fixed
+grid's (surrogate/rom/README.md, "A registered fit")."""
+
 
 def _fit(grid, container, samples, keep, modes, velocity_modes, ridge,
          bases=None, target: str = "velocity", flux_floor: float = FLUX_FLOOR,
-         fill_law: str | None = None) -> RomModel:
+         fill_law: str | None = None, registration: tuple = (None, None)) -> RomModel:
     return RomModel(grid, modes, velocity_modes, ridge, container, target=target,
-                    flux_floor=flux_floor, fill_law=fill_law).fit(
+                    flux_floor=flux_floor, fill_law=fill_law, registration=registration[0],
+                    registration_density=registration[1]).fit(
         samples["mass"][keep], samples["discharge_rate"][keep], samples["inflow_rate"][keep],
         samples["velocity"][keep], bases=bases)
 
 
 def leave_one_run_out_errors(grid, samples, candidates, target: str = "velocity",
-                             container=None, floors=None, fill_law: str | None = None) -> dict:
+                             container=None, floors=None, fill_law: str | None = None,
+                             registration: tuple = (None, None)) -> dict:
     """Each candidate ``(modes, velocity modes, ridge)``'s mean velocity-field
     relative error on each training run when the model is fitted on the other
     runs (cross-validation by whole DEM runs). The SVDs of a fold are done once
@@ -351,7 +361,9 @@ def leave_one_run_out_errors(grid, samples, candidates, target: str = "velocity"
     ``(modes, velocity modes, ridge, flux_floor)`` over ``floors`` (default
     ``FLUX_FLOORS``), the error that of the model's velocity (its flux over the
     held run's DEM cell mass, floored) against the DEM's, the same metric;
-    ``fill_law`` as ``RomModel``'s (fitted on the fold's runs)."""
+    ``fill_law`` as ``RomModel``'s (fitted on the fold's runs); ``registration``
+    ``(registration, registration_density)`` as ``RomModel``'s (the error is that
+    of the field mapped back on the grid)."""
     floors = (FLUX_FLOORS if floors is None else tuple(floors)) if target == "flux" else (None,)
     keys = [c if target == "velocity" else (*c, f) for c in candidates for f in floors]
     errors = {key: [] for key in keys}
@@ -360,10 +372,13 @@ def leave_one_run_out_errors(grid, samples, candidates, target: str = "velocity"
         fitted = samples["velocity"][~held]
         if target == "flux":
             fitted = flux_samples(samples["mass"][~held], fitted)
+        if registration[0] is not None:
+            fitted = register(fitted, samples["mass"][~held], grid,
+                              registration[1]).reshape(len(fitted), -1)
         bases = (pod_basis(samples["mass"][~held]), pod_basis(fitted, centred=False))
         for candidate in candidates:
             model = _fit(grid, container, samples, ~held, *candidate, bases=bases,
-                         target=target, fill_law=fill_law)
+                         target=target, fill_law=fill_law, registration=registration)
             for floor in floors:
                 if floor is not None:
                     model.flux_floor = floor
@@ -490,7 +505,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
           n_velocity_modes: int | None = None, ridge: float | None = None,
           progress=None, target: str = "velocity",
           flux_floor: float | None = None, fill_law: str | None = None,
-          rest_fraction: float | None = None) -> RomModel:
+          rest_fraction: float | None = None, registration: str | None = None) -> RomModel:
     """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it).
 
     ``target`` (default "velocity"): the field the regression fits (``RomModel``);
@@ -499,7 +514,10 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     ``RomModel``'s fitted fill, fitted in each fold of the selection too.
     ``rest_fraction`` (default None: fitted, ``surrogate.rom.rest.fit_samples``,
     its Youden table in the model's ``validation["rest"]``; 0: off): the resting
-    bulk's share the model file keeps.
+    bulk's share the model file keeps. ``registration`` (default None; "height"):
+    ``RomModel``'s registered fit, its density the design's settled density
+    (``surrogate.rom.packing.settled_density``), the candidates
+    ``REGISTERED_CANDIDATES``.
 
     Options left ``None`` are chosen among ``MODEL_CANDIDATES`` by the
     smallest leave-one-run-out velocity error (recorded in the model's
@@ -513,7 +531,14 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     meta = doe.read_meta(directory)
     samples = doe.load_samples(directory)
     grid = Grid.from_dict(meta["grid"])
-    candidates = [c for c in MODEL_CANDIDATES
+    from surrogate.rom.packing import settled_density
+
+    if registration not in (None, "height"):
+        raise ValidationError("registration", "None or 'height'", f"got {registration!r}")
+    registered = (registration, None if registration is None
+                  else settled_density(directory)["density"])
+    candidates = [c for c in (MODEL_CANDIDATES if registration is None
+                              else REGISTERED_CANDIDATES)
                   if (n_mass_modes is None or c[0] == n_mass_modes)
                   and (n_velocity_modes is None or c[1] == n_velocity_modes)
                   and (ridge is None or c[2] == ridge)]
@@ -526,7 +551,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     validation = {}
     if len(candidates) * len(floors) > 1 and np.unique(samples["run"]).size > 1:
         scores = leave_one_run_out_errors(grid, samples, candidates, target, container,
-                                          floors if flux else None, fill_law)
+                                          floors if flux else None, fill_law, registered)
         best = min(scores, key=scores.get)
         validation = {"leave_one_run_out_velocity_rel_error": scores[best],
                       "candidates": {"/".join(f"{x:g}" for x in key): e
@@ -538,7 +563,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         best = (*candidates[0], floors[0]) if flux else candidates[0]
     model = _fit(grid, container, samples, np.ones(samples["run"].size, dtype=bool),
                  *best[:3], target=target,
-                 flux_floor=best[3] if flux else FLUX_FLOOR, fill_law=fill_law)
+                 flux_floor=best[3] if flux else FLUX_FLOOR, fill_law=fill_law,
+                 registration=registered)
     if np.unique(samples["run"]).size > 1:
         seen = model.ranges["mass_distribution_residual"][1]
         unseen = leave_one_run_out_residual(samples, best[0])
@@ -580,6 +606,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
             options.update(fill_law=fill_law)
         if rest_fraction is not None:
             options.update(rest_fraction=rest_fraction)
+        if registration is not None:
+            options.update(registration=registration)
         model.provenance = training_provenance(directory, out, options)
         model.save(out)
     return model

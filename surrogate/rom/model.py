@@ -66,6 +66,20 @@ law is assumed; the dilatancy of sheared granular matter, Reynolds 1885,
 "On the dilatancy of media composed of rigid particles in contact", Phil.
 Mag. 20, 469-481, is why a flowing cell is looser).
 
+Registered fit (``registration="height"``, velocity fit only; default None:
+off). The velocity samples are registered on height-following levels before
+the POD (``surrogate.rom.registration``: each column's velocity at heights in
+units of the column's own height, eta = (y - y_min) / H(x), ``grid.ny``
+levels), the regression predicts the registered field's coefficients, and
+``predict`` maps the prediction back onto the grid of the mass field it is
+given, whose column heights are its column masses over
+``registration_density`` [kg/m^2] (the training DEM's settled density,
+``surrogate.rom.packing.settled_density``, as ``minetwin rom train`` sets it;
+default the container's areal density) unless ``predict(areal_density=...)``
+names the density that mass field is packed at (``RomStorage`` passes its own).
+Why: the fixed grid's POD does not carry the funnel's core where each pile puts
+it (surrogate/rom/README.md, "What the fit can reach").
+
 The model file (``save``/``load``) is one ``.npz`` holding the arrays and a
 JSON header with the format version, the grid, the options and the training
 ranges of every input. ``predict`` warns (``OutOfTrainingRange``) naming the
@@ -85,6 +99,7 @@ from pathlib import Path
 import numpy as np
 
 from cosim.errors import ValidationError
+from surrogate.rom import registration
 from surrogate.rom.container import Container
 from surrogate.rom.grid import Grid
 
@@ -108,6 +123,9 @@ FLUX_FLOORS = (0.25, 0.5, 1.0)
 
 FILL_LAWS = (None, "dem")
 """Accepted values of ``RomModel(fill_law=...)`` (module docstring, "Fitted fill")."""
+
+REGISTRATIONS = (None, "height")
+"""Accepted values of ``RomModel(registration=...)`` (module docstring, "Registered fit")."""
 
 FILL_LAW_BINS = (0.0, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5)
 """Lower edges [m/s] of the bins of j = |F| / M_full the fill law is fitted in
@@ -248,6 +266,12 @@ class RomModel:
         With ``target="flux"``: divide the flux by no more than the DEM's fitted
         fill of a cell carrying it (default None: off; module docstring,
         "Fitted fill").
+    registration : {None, "height"}
+        With ``target="velocity"``: fit the velocity on height-following levels
+        (default None: off; module docstring, "Registered fit").
+    registration_density : float, optional
+        Areal density [kg/m^2] the column heights of the registration are
+        measured at (default: the container's ``areal_density``).
 
     ``dispersivity`` [m] (default 0: none) is the bulk's dispersion about the
     mean flow measured on the training DEM (``surrogate.rom.dispersion``);
@@ -262,7 +286,8 @@ class RomModel:
     def __init__(self, grid: Grid, n_mass_modes: int = 12, n_velocity_modes: int = 16,
                  ridge: float = 1e-2, container: Container | None = None,
                  dem_config: dict | None = None, target: str = "velocity",
-                 flux_floor: float = FLUX_FLOOR, fill_law: str | None = None):
+                 flux_floor: float = FLUX_FLOOR, fill_law: str | None = None,
+                 registration: str | None = None, registration_density: float | None = None):
         if target not in TARGETS:
             raise ValidationError("target", f"one of {TARGETS}", f"got {target!r}")
         if target == "flux" and container is None:
@@ -273,6 +298,20 @@ class RomModel:
         if fill_law is not None and target != "flux":
             raise ValidationError("fill_law", "None unless target is 'flux'",
                                   f"got {fill_law!r} with target {target!r}")
+        if registration not in REGISTRATIONS:
+            raise ValidationError("registration", f"one of {REGISTRATIONS}",
+                                  f"got {registration!r}")
+        if registration is not None and target != "velocity":
+            raise ValidationError("registration", "None unless target is 'velocity'",
+                                  f"got {registration!r} with target {target!r}")
+        if registration is not None and registration_density is None:
+            if container is None:
+                raise ValidationError("registration_density", "a density [kg/m^2] or a "
+                                      "container to take it from", "got neither")
+            registration_density = container.areal_density
+        if registration_density is not None and not registration_density > 0:
+            raise ValidationError("registration_density", "> 0 kg/m^2",
+                                  f"got {registration_density!r}")
         if not 0 < flux_floor:
             raise ValidationError("flux_floor", "> 0", f"got {flux_floor!r}")
         if n_mass_modes < 1 or n_velocity_modes < 1:
@@ -288,6 +327,9 @@ class RomModel:
         self.target = target
         self.flux_floor = float(flux_floor)
         self.fill_law = fill_law
+        self.registration = registration
+        self.registration_density = (None if registration_density is None
+                                     else float(registration_density))
         self.dispersivity = 0.0
         self.rest_fraction = 0.0
         self.arrays: dict[str, np.ndarray] = {}
@@ -313,11 +355,14 @@ class RomModel:
             samples, to fit models of several mode counts without redoing the
             SVDs (model selection); the result is the same as without. With
             ``target="flux"`` the velocity basis is that of the flux
-            (``flux_samples``).
+            (``flux_samples``), with a registration that of the registered
+            velocity (``registered``).
         """
         mass = np.asarray(mass, dtype=np.float64).reshape(len(mass), -1)
-        velocity = np.asarray(velocity, dtype=np.float64).reshape(len(velocity), -1)
         flux_input = None
+        if self.registration is not None:
+            velocity = self.registered(mass, velocity)
+        velocity = np.asarray(velocity, dtype=np.float64).reshape(len(velocity), -1)
         if self.target == "flux" and velocity.shape[1] == 2 * mass.shape[1]:
             velocity = flux_input = flux_samples(mass, velocity)
         q_out = np.asarray(discharge_rate, dtype=np.float64)
@@ -360,6 +405,17 @@ class RomModel:
         }
         self.n_samples = samples
         return self
+
+    def registered(self, mass, velocity) -> np.ndarray:
+        """Velocity samples (S, ny, nx, 2) [m/s] of the mass fields ``mass`` (S, ny,
+        nx) [kg] on the registration's levels, flattened (S, 2 ny nx): what the
+        velocity POD of a registered fit decomposes."""
+        mass = np.asarray(mass, dtype=np.float64).reshape(len(mass), self.grid.ny,
+                                                          self.grid.nx)
+        velocity = np.asarray(velocity, dtype=np.float64).reshape(
+            len(velocity), self.grid.ny, self.grid.nx, 2)
+        return registration.register(velocity, mass, self.grid,
+                                     self.registration_density).reshape(len(mass), -1)
 
     @staticmethod
     def _features(z, q_out, q_in) -> np.ndarray:
@@ -422,11 +478,13 @@ class RomModel:
         return self.container.full_cell_mass(self.grid)
 
     def predict(self, mass, discharge_rate: float, inflow_rate: float = 0.0,
-                check: bool = True) -> np.ndarray:
+                check: bool = True, areal_density: float | None = None) -> np.ndarray:
         """Velocity field [m/s], ``(ny, nx, 2)``, for one mass field ``(ny, nx)`` [kg]
         and rates [kg/s]; with ``target="flux"`` the predicted flux over
-        max(mass, ``flux_floor`` full cells) (module docstring)."""
-        field, flat, z = self._fitted_field(mass, discharge_rate, inflow_rate)
+        max(mass, ``flux_floor`` full cells); with a registration mapped back by the
+        column heights of ``mass`` packed at ``areal_density`` [kg/m^2] (default
+        ``registration_density``) (module docstring)."""
+        field, flat, z = self._fitted_field(mass, discharge_rate, inflow_rate, areal_density)
         if check:  # here, so that the warning names the caller of predict
             self.check_ranges(flat, discharge_rate, inflow_rate,
                               float(self._residual(flat, z)[0]))
@@ -437,7 +495,8 @@ class RomModel:
     def predict_flux(self, mass, discharge_rate: float, inflow_rate: float = 0.0,
                      check: bool = True) -> np.ndarray:
         """Mass flux [kg m/s per cell], ``(ny, nx, 2)``: the fitted flux
-        (``target="flux"``) or the mass field times the predicted velocity."""
+        (``target="flux"``) or the mass field times the predicted velocity (mapped
+        back at ``registration_density`` with a registration)."""
         field, flat, z = self._fitted_field(mass, discharge_rate, inflow_rate)
         if check:
             self.check_ranges(flat, discharge_rate, inflow_rate,
@@ -468,9 +527,12 @@ class RomModel:
         field, _, _ = self._fitted_field(mass, discharge_rate, inflow_rate)
         return self._divisor(mass, field) / self.full_cell_mass
 
-    def _fitted_field(self, mass, discharge_rate: float, inflow_rate: float) -> tuple:
+    def _fitted_field(self, mass, discharge_rate: float, inflow_rate: float,
+                      areal_density: float | None = None) -> tuple:
         """``(field, flat mass, z)``: the regressed field (``target``'s unit),
-        ``(ny, nx, 2)``, the mass field (1, cells) and its POD coefficients."""
+        ``(ny, nx, 2)``, on the grid (a registered one mapped back by the column
+        heights of ``mass`` at ``areal_density``, default ``registration_density``),
+        the mass field (1, cells) and its POD coefficients."""
         if not self.trained:
             raise ValidationError("model", "a trained model (call fit or load first)")
         a = self.arrays
@@ -481,14 +543,20 @@ class RomModel:
         z = (flat - a["mass_mean"]) @ a["mass_modes"] / a["mass_scale"]
         coefficients = self._features(z, discharge_rate, inflow_rate) @ a["weights"]
         velocity = a["velocity_mean"] + (coefficients * a["velocity_scale"]) @ a["velocity_modes"].T
-        return velocity.reshape(self.grid.ny, self.grid.nx, 2), flat, z
+        field = velocity.reshape(1, self.grid.ny, self.grid.nx, 2)
+        if self.registration is not None:
+            field = registration.unregister(
+                field, flat.reshape(1, self.grid.ny, self.grid.nx), self.grid,
+                self.registration_density if areal_density is None else areal_density)
+        return field[0], flat, z
 
     # ---------------------------------------------------------- persistence
     def header(self) -> dict:
         """The file's JSON header; ``target`` and ``flux_floor`` are written for a flux
         fit only (a file without them is a velocity fit, as every file before them),
-        ``fill_law`` and ``rest_fraction`` only when set (a file without
-        ``rest_fraction`` has the resting bulk off, as every file before it)."""
+        ``fill_law``, ``rest_fraction`` and ``registration`` (with
+        ``registration_density``) only when set (a file without ``rest_fraction``
+        has the resting bulk off, as every file before it)."""
         header = self._header()
         if self.rest_fraction > 0.0:
             header.update(rest_fraction=self.rest_fraction)
@@ -496,6 +564,9 @@ class RomModel:
             header.update(target=self.target, flux_floor=self.flux_floor)
         if self.fill_law is not None:
             header.update(fill_law=self.fill_law)
+        if self.registration is not None:
+            header.update(registration=self.registration,
+                          registration_density=self.registration_density)
         return header
 
     def _header(self) -> dict:
@@ -540,7 +611,8 @@ class RomModel:
                     None if header.get("container") is None
                     else Container.from_dict(header["container"]),
                     header.get("dem_config"), header.get("target", "velocity"),
-                    float(header.get("flux_floor", FLUX_FLOOR)), header.get("fill_law"))
+                    float(header.get("flux_floor", FLUX_FLOOR)), header.get("fill_law"),
+                    header.get("registration"), header.get("registration_density"))
         model.arrays = arrays
         model.ranges = {k: list(v) for k, v in header["ranges"].items()}
         model.n_samples = int(header["n_samples"])

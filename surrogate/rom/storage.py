@@ -512,12 +512,14 @@ class RomStorage(StorageModel):
         (ny, nx) [kg] and the rates [kg/s], before the transport projects it (no
         range check)."""
         if self.velocity_model == "regressed":
-            field = self.model.predict(mass, discharge_rate, inflow_rate, check=False)
+            field = self.model.predict(mass, discharge_rate, inflow_rate, check=False,
+                                       areal_density=self.bulk_areal_density())
         else:
             kinematic = kinematic_field(self.model.grid, self.container, discharge_rate,
                                         self.diffusion_length)
             field = kinematic if self.velocity_model == "kinematic" else hybrid_field(
-                self.model.predict(mass, discharge_rate, inflow_rate, check=False),
+                self.model.predict(mass, discharge_rate, inflow_rate, check=False,
+                                   areal_density=self.bulk_areal_density()),
                 kinematic, self.model.grid, self.container)
         return at_rest(field, discharge_rate, self.container, self.rest_fraction)
 
