@@ -47,6 +47,7 @@ from surrogate.rom.dispersion import dispersivity
 from surrogate.rom.grid import Grid, mean_field
 from surrogate.rom.model import (FLUX_FLOOR, FLUX_FLOORS, RomModel, flux_samples, pod_basis,
                                   pod_residual)
+from surrogate.rom.packing import settled_density
 from surrogate.rom.provenance import training_provenance
 from surrogate.rom.registration import register
 
@@ -531,10 +532,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     meta = doe.read_meta(directory)
     samples = doe.load_samples(directory)
     grid = Grid.from_dict(meta["grid"])
-    from surrogate.rom.packing import settled_density
-
-    if registration not in (None, "height"):
-        raise ValidationError("registration", "None or 'height'", f"got {registration!r}")
+    # RomModel checks the registration's value when the first candidate is fitted
     registered = (registration, None if registration is None
                   else settled_density(directory)["density"])
     candidates = [c for c in (MODEL_CANDIDATES if registration is None

@@ -118,6 +118,12 @@ def check_field(text: str) -> str:
                           f"got {text!r}")
 
 
+def mode_count(field: str) -> int | None:
+    """K of a checked ``modes:K`` field (``check_field``); None for the others."""
+    kind, _, count = field.partition(":")
+    return int(count) if kind == "modes" else None
+
+
 def velocity_basis(design=TRAINING_DESIGN) -> np.ndarray:
     """The orthonormal modes (modes, 2 cells) of the uncentred POD of ``design``'s
     velocity samples, most energetic first (``RomModel``'s velocity basis)."""
@@ -243,7 +249,7 @@ def _builder(field: str, replica: dict, half_window: float, basis):
     if field == "model":
         return partial(FittedAtDemState, field_time=replica["field_time"],
                        field_mass=replica["field_mass"], half_window=half_window)
-    modes = None if field == "dem" else basis[:int(field.partition(":")[2])]
+    modes = None if field == "dem" else basis[:mode_count(field)]
     return partial(ReplayedField, field_time=replica["field_time"],
                    field_velocity=replica["field_velocity"], field_mass=replica["field_mass"],
                    half_window=half_window, modes=modes)
@@ -314,9 +320,9 @@ def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=PACKINGS_SCORED
             raise ValidationError("--packing", f"one of {PACKINGS}", f"got {packing!r}")
     fields = [check_field(field) for field in fields]
     basis = None
-    if any(field.startswith("modes:") for field in fields):
+    most = max((mode_count(field) or 0 for field in fields), default=0)
+    if most:
         basis = velocity_basis()
-        most = max(int(f.partition(":")[2]) for f in fields if f.startswith("modes:"))
         if most > basis.shape[0]:
             raise ValidationError("--field", f"modes:K with K at most {basis.shape[0]} "
                                   "(the training design's samples)", f"got modes:{most}")
@@ -351,7 +357,7 @@ def _field_label(entry: dict) -> str:
     field = entry["field"]
     if field == "model":
         return f"fit at DEM state ±{entry['half_window_s']:g} s"
-    name = "DEM field" if field == "dem" else f"DEM field, {field.partition(':')[2]} modes,"
+    name = "DEM field" if field == "dem" else f"DEM field, {mode_count(field)} modes,"
     return f"{name} ±{entry['half_window_s']:g} s"
 
 
