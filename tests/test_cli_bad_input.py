@@ -15,6 +15,7 @@ from minetwin.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = str(ROOT / "examples" / "step_response.toml")
+DESIGN = str(ROOT / "surrogate" / "rom" / "data" / "paper_design")
 
 
 @pytest.fixture(scope="module")
@@ -118,6 +119,12 @@ CASES = [
      "--from: must be a directory holding checkpoint.npz"),
     ("rom train --data {bad}/missing --out {out}/m.npz", "data: must be a DOE directory"),
     ("rom train --data {bad}/folder --out {out}/m.npz", "data: must be a DOE directory"),
+    ("rom train --data {bad}/folder --out {out}/m.npz --rom-seeds 3",
+     "--rom-seeds: must be only with --validation"),
+    ("rom train --data {bad}/folder --out {out}/m.npz --landing-spread -1",
+     "landing_spread: must be finite and >= 0 m"),
+    ("rom train --data {design} --out {out}/m.npz --validation {bad}/folder",
+     "validation: must be the data folder of an exported held-out design"),
     ("rom evaluate --model {bad}/text.md --data {bad}/folder", "model: must be a MineTwin ROM"),
     ("rom evaluate --quick --workers 0 --out {out}", "--workers: must be >= 1"),
     ("fmus validate {bad}/missing.fmu", "no such file"),
@@ -133,7 +140,8 @@ CASES = [
                                                        for k, c in enumerate(CASES)])
 def test_bad_input_exits_2_naming_the_argument_without_a_traceback(line, expected, bad,
                                                                    tmp_path, capsys):
-    argv = line.format(bad=bad, out=tmp_path / "out", scenario=SCENARIO).split()
+    argv = line.format(bad=bad, out=tmp_path / "out", scenario=SCENARIO,
+                       design=DESIGN).split()
     env_before = dict(os.environ)
     try:
         code = main(argv)

@@ -453,6 +453,42 @@ def test_an_exported_heldout_design_is_laid_out_and_scored(reduced_run, heldout_
     _choices_agree_with_every_model_run(summary, scored)
 
 
+def test_train_chooses_by_tracking_on_validation_scenes(reduced_run, heldout_run, tmp_path):
+    """``train(validation=...)`` fits every candidate on the whole design, runs each
+    through the validation design's scenes under the storage options and keeps
+    the one that tracks best; the record is what the chosen options score when
+    refitted alone and run again (seeded: exactly), and the model keeps the
+    storage options as its defaults. The scores are compared with each other,
+    never with a DEM trajectory's value."""
+    from surrogate.rom import evaluate, validation
+    from surrogate.rom.storage import RomStorage
+
+    pd.export(reduced_run[0], reduced_run[1], tmp_path / "train_data")
+    design, work, _ = heldout_run
+    pd.export(design, work, tmp_path / "validation")
+    options = {"packing": "none", "landing_spread": 0.5}
+    out = tmp_path / "chosen.npz"
+    model = evaluate.train(tmp_path / "train_data", out, n_mass_modes=2, n_velocity_modes=2,
+                           validation=tmp_path / "validation", storage_options=options,
+                           rom_seeds=1)
+    record = model.validation
+    assert record["selected_by"] == "tracking on validation scenes"
+    assert set(record["candidates"]) == {"2/2/0.1", "2/2/1", "2/2/10", "2/2/100"}
+    assert record["validation_tracking_error"] == min(record["candidates"].values())
+    assert record["candidates"][f"2/2/{model.ridge:g}"] == record["validation_tracking_error"]
+    assert list(record["validation_scenes"]) == ["small_heldout_q1000"]
+    assert record["validation_scenes"]["small_heldout_q1000"]["n"] == pd.HELDOUT_REPLICAS
+    loaded = evaluate.RomModel.load(out)
+    assert loaded.storage_settings == model.storage_settings == options
+    assert loaded.provenance["options"]["validation"] == str(tmp_path / "validation")
+    storage = RomStorage(loaded)
+    assert (storage.packing, storage.landing_spread) == ("none", 0.5)
+    alone = evaluate.train(tmp_path / "train_data", None, n_mass_modes=2, n_velocity_modes=2,
+                           ridge=model.ridge, storage_options=options)
+    again = validation.tracking_scores({"chosen": alone}, tmp_path / "validation", options, 1)
+    assert again["chosen"]["tracking_error"] == record["validation_tracking_error"]
+
+
 def _choices_agree_with_every_model_run(summary: dict, scored: dict) -> None:
     """Fidelity cards calibrated from this evaluation, where FIFO, mixing, the ROM and
     three DEM replicas ran on one scene: for a tracking-error target at each model's

@@ -24,6 +24,23 @@ def register(subparsers) -> None:
                        help="share of the feeder's mean outlet speed below which a cell of "
                             "the ROM's field rests, kept in the model file (default: fitted "
                             "on the design by Youden's index, surrogate.rom.rest; 0: off)")
+    train.add_argument("--validation", default=None, metavar="DIR",
+                       help="choose the options left open by the tracking error on the "
+                            "scenes of this exported held-out design (e.g. "
+                            "surrogate/rom/data/paper_validation; surrogate.rom.validation) "
+                            "instead of the leave-one-run-out velocity error")
+    train.add_argument("--packing", choices=("avalanche", "column", "none"), default=None,
+                       help="the storage's packing the model is chosen under and keeps as "
+                            "its default (RomStorage's packing; default: avalanche)")
+    train.add_argument("--packing-density", type=float, default=None, metavar="KG_M2",
+                       help="areal density [kg/m^2] the storage packs at, kept as the "
+                            "model's default (default: its container's)")
+    train.add_argument("--landing-spread", type=float, default=None, metavar="M",
+                       help="the surface layer's landing spread [m], kept as the model's "
+                            "default (default 0: none)")
+    train.add_argument("--rom-seeds", type=int, default=None, metavar="N",
+                       help="with --validation: ROM seeds 0 .. N-1 per scene (default 2; "
+                            "1-100)")
     train.set_defaults(handler=run_train)
     evaluate = sub.add_parser(
         "evaluate", help="score a ROM on the held-out DEM scenario; writes summary.json",
@@ -53,7 +70,7 @@ def register(subparsers) -> None:
                                "the storage's default)")
     evaluate.add_argument("--packing", choices=("avalanche", "column", "none"), default=None,
                           help="the ROM's packing after each move (RomStorage's packing; "
-                               "default: avalanche)")
+                               "default: the model file's, else avalanche)")
     evaluate.add_argument("--velocity-model", choices=("regressed", "kinematic", "hybrid"),
                           default=None,
                           help="the field the ROM's bulk moves by (RomStorage's "
@@ -62,8 +79,8 @@ def register(subparsers) -> None:
                                "downward speed where that is faster (default: regressed)")
     evaluate.add_argument("--packing-density", type=float, default=None, metavar="KG_M2",
                           help="areal density [kg/m^2] the ROM packs its bulk at "
-                               "(RomStorage's packing_density; default: the model's "
-                               "container's; the DEM's mean settled density of a design: "
+                               "(RomStorage's packing_density; default: the model "
+                               "file's, else its container's; the DEM's mean settled density of a design: "
                                "python -m surrogate.rom.packing --data DIR)")
     evaluate.add_argument("--rest-fraction", type=float, default=None, metavar="SHARE",
                           help="share of the feeder's mean outlet speed below which a cell "
@@ -73,7 +90,7 @@ def register(subparsers) -> None:
     evaluate.add_argument("--landing-spread", type=float, default=None, metavar="M",
                           help="standard deviation [m] of a normal offset to where the "
                                "ROM's surface DEM leaves each particle (RomStorage's "
-                               "landing_spread; default 0: none)")
+                               "landing_spread; default: the model file's, else 0: none)")
     evaluate.add_argument("--rom-seeds", type=int, default=1, metavar="N",
                           help="run the ROM with seeds 0 .. N-1 on every scene and score "
                                "the mean over them and the DEM replicas (default 1: seed 0; "
@@ -92,7 +109,8 @@ def register(subparsers) -> None:
     design.add_argument("--design", default="paper",
                         help="paper (default), reduced, paper_heldout (the held-out "
                              "scenes), paper_heldout_nonsmooth (those scenes by the "
-                             "nonsmooth DEM, one run each), paper_rock and "
+                             "nonsmooth DEM, one run each), paper_validation (a scene "
+                             "for choosing among fitted models, rom train --validation), paper_rock and "
                              "paper_rock_inflow (a held-out pile at rock stiffness, "
                              "drained, or fed and drained), paper_rock_nonsmooth and "
                              "paper_rock_inflow_nonsmooth (those by the nonsmooth DEM) "
@@ -159,12 +177,19 @@ def _progress(message: str) -> None:
 
 
 def run_train(args) -> int:
-    from surrogate.rom.evaluate import train
+    from cosim.errors import ValidationError
+    from surrogate.rom.evaluate import VALIDATION_ROM_SEEDS, train
 
+    if args.rom_seeds is not None and args.validation is None:
+        raise ValidationError("--rom-seeds", "only with --validation")
     model = train(args.data, args.out, args.mass_modes, args.velocity_modes, args.ridge,
                   progress=_progress, target=args.target, flux_floor=args.flux_floor,
                   fill_law=args.fill_law, rest_fraction=args.rest_fraction,
-                  registration=args.registration)
+                  registration=args.registration, validation=args.validation,
+                  storage_options={"packing": args.packing,
+                                   "packing_density": args.packing_density,
+                                   "landing_spread": args.landing_spread},
+                  rom_seeds=VALIDATION_ROM_SEEDS if args.rom_seeds is None else args.rom_seeds)
     print(f"trained on {model.n_samples} samples, grid {model.grid.nx}x{model.grid.ny}, "
           f"modes {model.n_mass_modes}/{model.n_velocity_modes}, ridge {model.ridge:g}, "
           f"resting share {model.rest_fraction:g}; wrote {args.out}")

@@ -352,6 +352,22 @@ def _fit(grid, container, samples, keep, modes, velocity_modes, ridge,
         samples["velocity"][keep], bases=bases)
 
 
+def fitted_bases(grid, samples, keep, registration: tuple = (None, None),
+                 target: str = "velocity") -> tuple:
+    """The POD bases (``pod_basis``) a ``RomModel`` fitted on the samples ``keep``
+    uses: the mass fields' and the uncentred one of the fitted field (the
+    velocity, or with ``target="flux"`` the flux, registered with a
+    ``registration`` ``(registration, registration_density)``), so that a fold's
+    or a design's SVDs are done once for all candidates."""
+    fitted = samples["velocity"][keep]
+    if target == "flux":
+        fitted = flux_samples(samples["mass"][keep], fitted)
+    if registration[0] is not None:
+        fitted = register(fitted, samples["mass"][keep], grid,
+                          registration[1]).reshape(len(fitted), -1)
+    return pod_basis(samples["mass"][keep]), pod_basis(fitted, centred=False)
+
+
 def leave_one_run_out_errors(grid, samples, candidates, target: str = "velocity",
                              container=None, floors=None, fill_law: str | None = None,
                              registration: tuple = (None, None)) -> dict:
@@ -370,13 +386,7 @@ def leave_one_run_out_errors(grid, samples, candidates, target: str = "velocity"
     errors = {key: [] for key in keys}
     for run in np.unique(samples["run"]):
         held = samples["run"] == run
-        fitted = samples["velocity"][~held]
-        if target == "flux":
-            fitted = flux_samples(samples["mass"][~held], fitted)
-        if registration[0] is not None:
-            fitted = register(fitted, samples["mass"][~held], grid,
-                              registration[1]).reshape(len(fitted), -1)
-        bases = (pod_basis(samples["mass"][~held]), pod_basis(fitted, centred=False))
+        bases = fitted_bases(grid, samples, ~held, registration, target)
         for candidate in candidates:
             model = _fit(grid, container, samples, ~held, *candidate, bases=bases,
                          target=target, fill_law=fill_law, registration=registration)
@@ -502,75 +512,29 @@ def rom_numerical_dispersivity(model: RomModel, directory, samples: dict,
     return dispersivity(fits)
 
 
-def train(directory, out=None, n_mass_modes: int | None = None,
-          n_velocity_modes: int | None = None, ridge: float | None = None,
-          progress=None, target: str = "velocity",
-          flux_floor: float | None = None, fill_law: str | None = None,
-          rest_fraction: float | None = None, registration: str | None = None) -> RomModel:
-    """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it).
-
-    ``target`` (default "velocity"): the field the regression fits (``RomModel``);
-    with "flux" the ``flux_floor`` left ``None`` is chosen among ``FLUX_FLOORS``
-    with the other options; ``fill_law`` (default None; "dem" with "flux" only):
-    ``RomModel``'s fitted fill, fitted in each fold of the selection too.
-    ``rest_fraction`` (default None: fitted, ``surrogate.rom.rest.fit_samples``,
-    its Youden table in the model's ``validation["rest"]``; 0: off): the resting
-    bulk's share the model file keeps. ``registration`` (default None; "height"):
-    ``RomModel``'s registered fit, its density the design's settled density
-    (``surrogate.rom.packing.settled_density``), the candidates
-    ``REGISTERED_CANDIDATES``.
-
-    Options left ``None`` are chosen among ``MODEL_CANDIDATES`` by the
-    smallest leave-one-run-out velocity error (recorded in the model's
-    ``validation``), so the held-out scenario plays no part in the choice.
-    The training range of the mass distribution's residual is the larger of
-    the training states' own and ``leave_one_run_out_residual`` (both in
-    ``validation``).
-    """
-    from surrogate.rom.container import Container
-
-    meta = doe.read_meta(directory)
-    samples = doe.load_samples(directory)
-    grid = Grid.from_dict(meta["grid"])
-    # RomModel checks the registration's value when the first candidate is fitted
-    registered = (registration, None if registration is None
-                  else settled_density(directory)["density"])
-    candidates = [c for c in (MODEL_CANDIDATES if registration is None
-                              else REGISTERED_CANDIDATES)
-                  if (n_mass_modes is None or c[0] == n_mass_modes)
-                  and (n_velocity_modes is None or c[1] == n_velocity_modes)
-                  and (ridge is None or c[2] == ridge)]
-    if not candidates:
-        candidates = [(n_mass_modes or 4, n_velocity_modes or n_mass_modes or 4,
-                       1.0 if ridge is None else ridge)]
-    container = Container.from_dict(meta["container"])
-    flux = target == "flux"
-    floors = (FLUX_FLOORS if flux_floor is None else (flux_floor,)) if flux else (None,)
-    validation = {}
-    if len(candidates) * len(floors) > 1 and np.unique(samples["run"]).size > 1:
-        scores = leave_one_run_out_errors(grid, samples, candidates, target, container,
-                                          floors if flux else None, fill_law, registered)
-        best = min(scores, key=scores.get)
-        validation = {"leave_one_run_out_velocity_rel_error": scores[best],
-                      "candidates": {"/".join(f"{x:g}" for x in key): e
-                                     for key, e in scores.items()}}
-        _say(progress, f"model selection: modes {best[0]}/{best[1]}, ridge {best[2]:g}, "
-                       + (f"flux floor {best[3]:g}, " if flux else "")
-                       + f"leave-one-run-out velocity error {scores[best]:.3f}")
-    else:
-        best = (*candidates[0], floors[0]) if flux else candidates[0]
-    model = _fit(grid, container, samples, np.ones(samples["run"].size, dtype=bool),
-                 *best[:3], target=target,
-                 flux_floor=best[3] if flux else FLUX_FLOOR, fill_law=fill_law,
-                 registration=registered)
+def _completed(model: RomModel, directory, samples: dict, record: dict,
+               rest_fraction: float | None, storage_options: dict, progress=None,
+               residuals: dict | None = None) -> RomModel:
+    """``model`` (fitted) as ``train`` ships it: its ``storage_settings``, its
+    ``validation`` (``record``, then the residual's training range: the larger of
+    the training states' own and ``leave_one_run_out_residual``, kept in
+    ``residuals`` by mass modes when given), the design's DEM, then the random
+    walk's dispersivity (what the ROM's own scheme under those settings leaves
+    short of the DEM's dispersion) and the resting bulk's share (fitted unless
+    ``rest_fraction`` is given)."""
+    model.storage_settings = dict(storage_options)
+    model.validation = dict(record)
     if np.unique(samples["run"]).size > 1:
         seen = model.ranges["mass_distribution_residual"][1]
-        unseen = leave_one_run_out_residual(samples, best[0])
+        residuals = {} if residuals is None else residuals
+        if model.n_mass_modes not in residuals:
+            residuals[model.n_mass_modes] = leave_one_run_out_residual(samples,
+                                                                       model.n_mass_modes)
+        unseen = residuals[model.n_mass_modes]
         model.ranges["mass_distribution_residual"] = [0.0, max(seen, unseen)]
-        validation["mass_distribution_residual_max"] = {"training_states": seen,
-                                                        "unseen_runs": unseen}
-    model.validation = validation
-    model.dem_config = meta.get("dem_config")
+        model.validation["mass_distribution_residual_max"] = {"training_states": seen,
+                                                              "unseen_runs": unseen}
+    model.dem_config = doe.read_meta(directory).get("dem_config")
     if "dispersion_fit" in samples:
         measured = dispersivity(samples["dispersion_fit"])
         own = rom_numerical_dispersivity(model, directory, samples)
@@ -592,9 +556,155 @@ def train(directory, out=None, n_mass_modes: int | None = None,
             else "off (a point outlet, no discharging sample or no share that tells "
                  "resting from moving cells)"))
     else:
-        rest_fraction = float(check_finite_range("rest_fraction", rest_fraction, 0.0, 1.0))
-        rest.check_share(rest_fraction, container)
         model.rest_fraction = rest_fraction
+    return model
+
+
+VALIDATION_ROM_SEEDS = 2
+"""Default ROM seeds per validation scene of ``train``'s selection by tracking."""
+
+STORAGE_SETTINGS = ("packing", "packing_density", "landing_spread")
+"""The ``RomStorage`` options a model chosen by tracking keeps (``RomModel.storage_settings``)."""
+
+
+def check_storage_options(options: dict | None) -> dict:
+    """``options`` (``STORAGE_SETTINGS`` only, None values dropped), checked by
+    ``RomStorage``'s own rules; anything else is refused naming it."""
+    options = {k: v for k, v in (options or {}).items() if v is not None}
+    unknown = sorted(set(options) - set(STORAGE_SETTINGS))
+    if unknown:
+        raise ValidationError("storage_options", f"only {', '.join(STORAGE_SETTINGS)}",
+                              f"got {', '.join(unknown)}")
+    from surrogate.rom.storage import PACKINGS
+
+    if "packing" in options and options["packing"] not in PACKINGS:
+        raise ValidationError("packing", f"one of {PACKINGS}", f"got {options['packing']!r}")
+    if "packing_density" in options:
+        options["packing_density"] = float(check_finite_range(
+            "packing_density", options["packing_density"], 0.0, low_open=True, unit="kg/m^2"))
+    if "landing_spread" in options:
+        options["landing_spread"] = float(check_finite_range(
+            "landing_spread", options["landing_spread"], 0.0, unit="m"))
+    return options
+
+
+def train(directory, out=None, n_mass_modes: int | None = None,
+          n_velocity_modes: int | None = None, ridge: float | None = None,
+          progress=None, target: str = "velocity",
+          flux_floor: float | None = None, fill_law: str | None = None,
+          rest_fraction: float | None = None, registration: str | None = None,
+          validation=None, storage_options: dict | None = None,
+          rom_seeds: int = VALIDATION_ROM_SEEDS) -> RomModel:
+    """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it).
+
+    ``target`` (default "velocity"): the field the regression fits (``RomModel``);
+    with "flux" the ``flux_floor`` left ``None`` is chosen among ``FLUX_FLOORS``
+    with the other options; ``fill_law`` (default None; "dem" with "flux" only):
+    ``RomModel``'s fitted fill, fitted in each fold of the selection too.
+    ``rest_fraction`` (default None: fitted, ``surrogate.rom.rest.fit_samples``,
+    its Youden table in the model's ``validation["rest"]``; 0: off): the resting
+    bulk's share the model file keeps. ``registration`` (default None; "height"):
+    ``RomModel``'s registered fit, its density the design's settled density
+    (``surrogate.rom.packing.settled_density``), the candidates
+    ``REGISTERED_CANDIDATES``. ``storage_options`` (default none;
+    ``STORAGE_SETTINGS``): the ``RomStorage`` options the model is chosen under
+    and keeps as its ``storage_settings``.
+
+    Options left ``None`` are chosen among ``MODEL_CANDIDATES`` by the
+    smallest leave-one-run-out velocity error (recorded in the model's
+    ``validation``), so the held-out scenario plays no part in the choice.
+    With ``validation`` (the data folder of an exported held-out design, such
+    as ``paper_validation``; velocity fits only) they are chosen by the smallest
+    tracking error on its scenes instead (``surrogate.rom.validation``, ROM seeds
+    0 .. ``rom_seeds`` - 1, default ``VALIDATION_ROM_SEEDS``), each candidate
+    fitted on the whole design and completed as the model is shipped.
+    The training range of the mass distribution's residual is the larger of
+    the training states' own and ``leave_one_run_out_residual`` (both in
+    ``validation``).
+    """
+    from surrogate.rom.container import Container
+
+    storage_options = check_storage_options(storage_options)
+    if rest_fraction is not None:
+        rest_fraction = float(check_finite_range("rest_fraction", rest_fraction, 0.0, 1.0))
+    meta = doe.read_meta(directory)
+    samples = doe.load_samples(directory)
+    grid = Grid.from_dict(meta["grid"])
+    container = Container.from_dict(meta["container"])
+    if rest_fraction is not None:
+        rest.check_share(rest_fraction, container)
+    flux = target == "flux"
+    if validation is not None:
+        from surrogate.rom import heldout_layout
+
+        if flux:
+            raise ValidationError("validation", "a velocity fit (target 'velocity')",
+                                  f"got target {target!r}")
+        if not heldout_layout.is_heldout_data(validation):
+            raise ValidationError("validation", "the data folder of an exported held-out "
+                                  "design (`minetwin rom design --design paper_validation "
+                                  "--export`)", f"{validation} is not one")
+        rom_seeds = check_rom_seeds(rom_seeds)
+    # RomModel checks the registration's value when the first candidate is fitted
+    registered = (registration, None if registration is None
+                  else settled_density(directory)["density"])
+    candidates = [c for c in (MODEL_CANDIDATES if registration is None
+                              else REGISTERED_CANDIDATES)
+                  if (n_mass_modes is None or c[0] == n_mass_modes)
+                  and (n_velocity_modes is None or c[1] == n_velocity_modes)
+                  and (ridge is None or c[2] == ridge)]
+    if not candidates:
+        candidates = [(n_mass_modes or 4, n_velocity_modes or n_mass_modes or 4,
+                       1.0 if ridge is None else ridge)]
+    floors = (FLUX_FLOORS if flux_floor is None else (flux_floor,)) if flux else (None,)
+    everything = np.ones(samples["run"].size, dtype=bool)
+    validation_record, model = {}, None
+    if validation is not None and len(candidates) > 1:
+        from surrogate.rom.validation import tracking_scores
+
+        bases = fitted_bases(grid, samples, everything, registered)
+        fitted, residuals = {}, {}
+        for number, candidate in enumerate(candidates, start=1):
+            _say(progress, f"candidate {number} of {len(candidates)}: modes "
+                           f"{candidate[0]}/{candidate[1]}, ridge {candidate[2]:g}")
+            fitted[candidate] = _completed(
+                _fit(grid, container, samples, everything, *candidate, bases=bases,
+                     registration=registered),
+                directory, samples, {}, rest_fraction, storage_options, residuals=residuals)
+        scores = tracking_scores(fitted, validation, storage_options, rom_seeds, progress)
+        best = min(scores, key=lambda key: scores[key]["tracking_error"])
+        model = fitted[best]
+        validation_record = {
+            "selected_by": "tracking on validation scenes",
+            "validation_data": Path(validation).name, "rom_seeds": rom_seeds,
+            "storage_settings": storage_options,
+            "validation_tracking_error": scores[best]["tracking_error"],
+            "validation_scenes": scores[best]["scenes"],
+            "candidates": {"/".join(f"{x:g}" for x in key): entry["tracking_error"]
+                           for key, entry in scores.items()}}
+        _say(progress, f"model selection: modes {best[0]}/{best[1]}, ridge {best[2]:g}, "
+                       f"tracking error {scores[best]['tracking_error']:.3f} on the "
+                       "validation scenes")
+    elif len(candidates) * len(floors) > 1 and np.unique(samples["run"]).size > 1:
+        scores = leave_one_run_out_errors(grid, samples, candidates, target, container,
+                                          floors if flux else None, fill_law, registered)
+        best = min(scores, key=scores.get)
+        validation_record = {"leave_one_run_out_velocity_rel_error": scores[best],
+                             "candidates": {"/".join(f"{x:g}" for x in key): e
+                                            for key, e in scores.items()}}
+        _say(progress, f"model selection: modes {best[0]}/{best[1]}, ridge {best[2]:g}, "
+                       + (f"flux floor {best[3]:g}, " if flux else "")
+                       + f"leave-one-run-out velocity error {scores[best]:.3f}")
+    else:
+        best = (*candidates[0], floors[0]) if flux else candidates[0]
+    if model is None:
+        model = _completed(_fit(grid, container, samples, everything, *best[:3], target=target,
+                                flux_floor=best[3] if flux else FLUX_FLOOR, fill_law=fill_law,
+                                registration=registered),
+                           directory, samples, validation_record, rest_fraction,
+                           storage_options, progress)
+    else:
+        model.validation = {**validation_record, **model.validation}
     if out is not None:
         options = {"mass_modes": n_mass_modes, "velocity_modes": n_velocity_modes,
                    "ridge": ridge}
@@ -606,6 +716,9 @@ def train(directory, out=None, n_mass_modes: int | None = None,
             options.update(rest_fraction=rest_fraction)
         if registration is not None:
             options.update(registration=registration)
+        if validation is not None:
+            options.update(validation=str(validation), rom_seeds=rom_seeds)
+        options.update(storage_options)
         model.provenance = training_provenance(directory, out, options)
         model.save(out)
     return model

@@ -278,7 +278,11 @@ class RomModel:
     ``rest_fraction`` [-] (default 0: off) the share of the feeder's mean outlet
     speed below which a cell of the predicted field rests, fitted on the
     training DEM (``surrogate.rom.rest``; ``RomStorage``'s default).
-    ``minetwin rom train`` sets both and the file keeps them, as it keeps the
+    ``storage_settings`` (default {}: the storage's own defaults) are the
+    ``RomStorage`` options ``packing``, ``packing_density`` [kg/m^2] and
+    ``landing_spread`` [m] a model chosen by tracking (``minetwin rom train
+    --validation``) was chosen under: the storage's defaults for it.
+    ``minetwin rom train`` sets them and the file keeps them, as it keeps the
     ``provenance`` (``surrogate.rom.provenance``: data, design, seeds, code
     version, the command that regenerates the file).
     """
@@ -332,6 +336,7 @@ class RomModel:
                                      else float(registration_density))
         self.dispersivity = 0.0
         self.rest_fraction = 0.0
+        self.storage_settings: dict = {}
         self.arrays: dict[str, np.ndarray] = {}
         self.ranges: dict[str, list[float]] = {}
         self.n_samples = 0
@@ -554,8 +559,8 @@ class RomModel:
     def header(self) -> dict:
         """The file's JSON header; ``target`` and ``flux_floor`` are written for a flux
         fit only (a file without them is a velocity fit, as every file before them),
-        ``fill_law``, ``rest_fraction`` and ``registration`` (with
-        ``registration_density``) only when set (a file without ``rest_fraction``
+        ``fill_law``, ``rest_fraction``, ``registration`` (with
+        ``registration_density``) and ``storage_settings`` only when set (a file without ``rest_fraction``
         has the resting bulk off, as every file before it)."""
         header = self._header()
         if self.rest_fraction > 0.0:
@@ -567,6 +572,8 @@ class RomModel:
         if self.registration is not None:
             header.update(registration=self.registration,
                           registration_density=self.registration_density)
+        if self.storage_settings:
+            header.update(storage_settings=self.storage_settings)
         return header
 
     def _header(self) -> dict:
@@ -619,5 +626,6 @@ class RomModel:
         model.validation = header.get("validation", {})
         model.dispersivity = float(header.get("dispersivity", 0.0))
         model.rest_fraction = float(header.get("rest_fraction", 0.0))
+        model.storage_settings = dict(header.get("storage_settings", {}))
         model.provenance = header.get("provenance", {})
         return model

@@ -395,6 +395,31 @@ def paper_rock_inflow_nonsmooth_design() -> Design:
                         method="nonsmooth")
 
 
+VALIDATION_REPLICAS = 2
+"""DEM replicas of the validation scene: a reference and one to show its spread."""
+
+VALIDATION_SCENES = (("validation_q1600", 1600.0, 1600.0),)
+"""The validation scene ``(name, discharge [kg/s], inflow [kg/s])``: between the
+paper's two throughputs, a rate pair neither the design nor the held-out scenes run."""
+
+VALIDATION_PILE = PileSpec("validation_1600t", 19_000, seed=3)
+"""The validation scene's laid-out pile (about 1.6 kt, between the design's 1.2 and
+1.7 kt and beside the held-out scenes' 1.5 kt)."""
+
+
+def paper_validation_design() -> Design:
+    """A validation scene for choosing among fitted models by tracking (``rom train
+    --validation``), apart from both the design they are fitted on and the held-out
+    scenes they are scored on (a train / validation / test split): a laid-out pile
+    of 19,000 disks (about 1.6 kt) run for 180 s at 1.6 t/s in and out, as
+    ``VALIDATION_REPLICAS`` DEM replicas."""
+    cfg = paper_config()
+    return Design("paper_validation", cfg, paper_grid(cfg), (VALIDATION_PILE,),
+                  _heldout_runs(f"pile:{VALIDATION_PILE.name}", VALIDATION_SCENES, 180.0,
+                                first_seed=300, replicas=VALIDATION_REPLICAS),
+                  checkpoint_interval=20.0, keep_start_states=True)
+
+
 def reduced_heldout_design() -> Design:
     """``paper_heldout_design`` on a few hundred disks and seconds (for tests)."""
     cfg = paper_config()
@@ -408,6 +433,7 @@ def reduced_heldout_design() -> Design:
 DESIGNS = {"paper": paper_design, "reduced": reduced_design,
            "paper_heldout": paper_heldout_design, "reduced_heldout": reduced_heldout_design,
            "paper_heldout_nonsmooth": paper_heldout_nonsmooth_design,
+           "paper_validation": paper_validation_design,
            "paper_rock": paper_rock_design, "paper_rock_nonsmooth": paper_rock_nonsmooth_design,
            "paper_rock_inflow": paper_rock_inflow_design,
            "paper_rock_inflow_nonsmooth": paper_rock_inflow_nonsmooth_design}

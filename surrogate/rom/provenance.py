@@ -9,8 +9,9 @@ command that regenerates it bit for bit on the same machine").
 files (``doe.json`` and ``train/*.npz``, names and bytes), the design and
 its runs (name, content key, seed, the git commit each DEM run was made at)
 when the folder holds a design's ``manifest.json``, the source tree's git
-commit and numpy version the model was fitted with, the options, and the
-command line. The fit is deterministic (SVD and a linear solve, no random
+commit and numpy version the model was fitted with, the options (with the
+SHA-256 of a validation design's files, ``minetwin rom train --validation``),
+and the command line. The fit is deterministic (SVD and a linear solve, no random
 draw): the same data, options, code and machine give the same file.
 """
 
@@ -45,10 +46,17 @@ def _runs(directory: Path) -> tuple[dict, list]:
     return {"design": design.get("design"), "design_version": design.get("design_version")}, runs
 
 
+def _flag_value(value) -> str:
+    """A float as short as it reads back exactly (``100``, ``564.1891533925966``)."""
+    if isinstance(value, float):
+        short = f"{value:g}"
+        return short if float(short) == value else repr(value)
+    return str(value)
+
+
 def regenerate_command(data, out, options: dict) -> str:
     """``minetwin rom train`` with ``data``, ``out`` and the options that were given."""
-    flags = "".join(f" --{name.replace('_', '-')} {value:g}" if isinstance(value, float)
-                    else f" --{name.replace('_', '-')} {value}"
+    flags = "".join(f" --{name.replace('_', '-')} {_flag_value(value)}"
                     for name, value in options.items() if value is not None)
     return f"minetwin rom train --data {data} --out {out}{flags}"
 
@@ -56,6 +64,10 @@ def regenerate_command(data, out, options: dict) -> str:
 def training_provenance(data, out, options: dict) -> dict:
     """The provenance of a model trained on ``data`` into ``out`` (module docstring)."""
     design, runs = _runs(Path(data))
-    return {**design, "data": str(data), "data_sha256": data_digest(data), "runs": runs,
-            "code_version": batch.code_version(), "numpy": np.__version__,
-            "options": dict(options), "regenerate": regenerate_command(data, out, options)}
+    provenance = {**design, "data": str(data), "data_sha256": data_digest(data), "runs": runs,
+                  "code_version": batch.code_version(), "numpy": np.__version__,
+                  "options": dict(options),
+                  "regenerate": regenerate_command(data, out, options)}
+    if options.get("validation") is not None:  # the scenes the options were chosen on
+        provenance["validation_sha256"] = data_digest(options["validation"])
+    return provenance

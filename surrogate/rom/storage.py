@@ -111,10 +111,10 @@ transport : {"balanced", "projected", "repack"}
     ("projected", ``free_surface="potential"``); "repack": the prediction as
     it is, the packing undoing its compaction (the scheme before the
     projection). On the paper-scale held-out scenes: surrogate/rom/README.md.
-packing : {"avalanche", "column", "none"}
-    After each move (default "avalanche"): ``settle`` with angle-of-repose
-    avalanches, ``settle`` without them (columns re-stacked in their height
-    order), or nothing.
+packing : {"avalanche", "column", "none"}, optional
+    After each move: ``settle`` with angle-of-repose avalanches, ``settle``
+    without them (columns re-stacked in their height order), or nothing
+    (default None: the model's ``storage_settings``, else "avalanche").
 fill : float
     Least fraction of a full cell's mass that makes a grid cell bulk in the
     projection [-] (default ``surrogate.rom.transport.FILL`` = 0.9).
@@ -137,9 +137,9 @@ diffusion_length : float
     paper-scale training design); used with ``velocity_model="kinematic"`` or
     ``"hybrid"``.
 packing_density : float, optional
-    Areal density [kg/m^2] the ROM packs its bulk at (default None: the model
-    container's ``areal_density``, the 90th percentile of the base pile's cell
-    masses, ``doe.areal_density``). Given, the storage runs in a copy of the
+    Areal density [kg/m^2] the ROM packs its bulk at (default None: the model's
+    ``storage_settings``, else the model container's ``areal_density``, the 90th
+    percentile of the base pile's cell masses, ``doe.areal_density``). Given, the storage runs in a copy of the
     container with this density, so everything that uses the bulk density uses
     it: the column packing and avalanches (``surface.settle``), the surface
     heights and deposits (``surface.surface_heights``, ``deposit``), the packing
@@ -159,10 +159,11 @@ rest_fraction : float or None
     paper-scale ROM and 0, off, for a model of a point outlet; 0 turns it off).
     On the paper-scale held-out scenes: surrogate/rom/README.md, "The resting
     bulk".
-landing_spread : float
+landing_spread : float, optional
     Standard deviation [m] of a normal offset added to the x where the surface
     DEM leaves each particle, before it rolls on by the angle-of-repose rule
-    (default 0: none; used with ``surface="dem"``). The surface layer's fixed
+    (default None: the model's ``storage_settings``, else 0: none; used with
+    ``surface="dem"``). The surface layer's fixed
     bed takes no part in the crowding of a dense stream, so on the paper-scale
     pile its particles join the bulk closer to the inlet than the DEM's do
     when they reach the bulk age ``doe.BULK_AGE``: measured on the training
@@ -219,6 +220,9 @@ TRANSPORTS = ("repack", "projected", "balanced")
 
 PACKINGS = ("avalanche", "column", "none")
 """Accepted values of ``RomStorage(packing=...)``."""
+
+DEFAULT_PACKING = "avalanche"
+"""The packing of a model whose ``storage_settings`` name none."""
 
 VELOCITY_MODELS = ("regressed", "kinematic", "hybrid")
 """Accepted values of ``RomStorage(velocity_model=...)``."""
@@ -282,19 +286,22 @@ class RomStorage(StorageModel):
                  rng: np.random.Generator | None = None,
                  fallback: str | None = None, fallback_config=None, surface: str = "dem",
                  surface_config=None, surface_dt_safety_factor: float | None = None,
-                 transport: str = "balanced", packing: str = "avalanche", fill: float = FILL,
+                 transport: str = "balanced", packing: str | None = None, fill: float = FILL,
                  relax: float = 1.0, velocity_model: str = "regressed",
                  diffusion_length: float = DIFFUSION_LENGTH,
                  packing_density: float | None = None,
-                 rest_fraction: float | None = None, landing_spread: float = 0.0):
+                 rest_fraction: float | None = None, landing_spread: float | None = None):
         super().__init__(rng=rng)
-        self.landing_spread = float(check_finite_range("landing_spread", landing_spread, 0.0,
-                                                       unit="m"))
+        # packing, packing_density and landing_spread left None take the model's
+        # storage_settings (the ones it was chosen under) at load
+        self.landing_spread_option = (None if landing_spread is None else float(
+            check_finite_range("landing_spread", landing_spread, 0.0, unit="m")))
         self.rest_option = (None if rest_fraction is None else float(check_finite_range(
             "rest_fraction", rest_fraction, 0.0, 1.0)))
         self.rest_fraction = 0.0  # the share in use: the option's, else the model's
-        self.packing_density = (None if packing_density is None else float(check_finite_range(
-            "packing_density", packing_density, 0.0, low_open=True, unit="kg/m^2")))
+        self.packing_density_option = (None if packing_density is None else float(
+            check_finite_range("packing_density", packing_density, 0.0, low_open=True,
+                               unit="kg/m^2")))
         if velocity_model not in VELOCITY_MODELS:
             raise ValidationError("velocity_model", f"one of {VELOCITY_MODELS}",
                                   f"got {velocity_model!r}")
@@ -303,9 +310,9 @@ class RomStorage(StorageModel):
                                                          0.0, low_open=True, unit="m"))
         if transport not in TRANSPORTS:
             raise ValidationError("transport", f"one of {TRANSPORTS}", f"got {transport!r}")
-        if packing not in PACKINGS:
+        if packing is not None and packing not in PACKINGS:
             raise ValidationError("packing", f"one of {PACKINGS}", f"got {packing!r}")
-        self.transport, self.packing = transport, packing
+        self.transport, self.packing_option = transport, packing
         self.fill = float(check_finite_range("fill", fill, 0.0, 1.0, low_open=True))
         self.relax = float(check_finite_range("relax", relax, 0.0, 1.0, low_open=True))
         self._faces = None  # the projected face velocities (any transport but "repack")
@@ -361,6 +368,15 @@ class RomStorage(StorageModel):
         if model.container is None or not model.trained:
             raise ValidationError("model", "a trained ROM with its container geometry")
         self.model = model
+        settings = model.storage_settings
+        self.packing = (settings.get("packing", DEFAULT_PACKING) if self.packing_option is None
+                        else self.packing_option)
+        self.packing_density = (settings.get("packing_density")
+                                if self.packing_density_option is None
+                                else self.packing_density_option)
+        self.landing_spread = (settings.get("landing_spread", 0.0)
+                               if self.landing_spread_option is None
+                               else self.landing_spread_option)
         self.container = (model.container if self.packing_density is None else
                           replace(model.container, areal_density=self.packing_density))
         self.rest_fraction = (model.rest_fraction if self.rest_option is None

@@ -1,0 +1,72 @@
+"""Choosing among fitted ROMs by tracking on validation scenes.
+
+Source: issue 15 (the ROM scored by its tracking error against DEM replicas,
+``surrogate.rom.metrics``) and the train / validation / test split of model
+selection (Hastie, Tibshirani and Friedman 2009, "The Elements of Statistical
+Learning", 2nd ed., section 7.2): the candidates are fitted on the training
+design, chosen on validation scenes, and scored on held-out scenes that took
+no part in either.
+
+Why: the leave-one-run-out error of the velocity field (``evaluate.train``'s
+default selection) is dominated by the DEM's own fluctuations (its floor is
+0.39-0.56 on the paper-scale held-out scenes) and ties models that track
+differently (surrogate/rom/README.md, "A registered fit"); the tracking error
+is what the ROM is for.
+
+A validation data folder is an exported held-out design
+(``paper_design.Design.keep_start_states``; ``minetwin rom design --design
+paper_validation --export``). Each candidate runs through every scene laid out
+from it (``heldout_layout``) once per ROM seed 0 .. ``rom_seeds`` - 1 under the
+given ``RomStorage`` options, and is scored against every stable DEM replica
+of the scene (``evaluate.ensemble_score``); its score is the mean over scenes
+of the mean over (seed, replica) pairs.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from surrogate.rom import evaluate, heldout_layout
+
+
+def _say(progress, message: str) -> None:
+    if progress is not None:
+        progress(message)
+
+
+def tracking_scores(models: dict, data, storage_options: dict | None = None,
+                    rom_seeds: int = 2, progress=None) -> dict:
+    """Each model's tracking error on the validation scenes of ``data``.
+
+    ``models``: ``{key: RomModel}``; ``storage_options``: ``RomStorage``
+    options every run uses (default none); ``rom_seeds``: 1-100 (default 2).
+    Returns ``{key: {"tracking_error": mean over scenes, "scenes": {scene:
+    spread over (seed, replica) pairs}}}`` (``evaluate.spread``).
+    """
+    rom_seeds = evaluate.check_rom_seeds(rom_seeds)
+    options = dict(storage_options or {})
+    scores = {key: {"scenes": {}} for key in models}
+    with heldout_layout.scenes_laid_out(data) as (folder, names):
+        for name in names:
+            scene = folder / name
+            replicas = evaluate.stable_replicas(scene)
+            references = [evaluate.outflow_of(run) for run in replicas]
+            t0 = float(replicas[0]["t0"])
+            t1 = t0 + evaluate.scenario_duration(scene)
+            for number, (key, model) in enumerate(models.items(), start=1):
+                _say(progress, f"validation scene {name}: candidate {number} of {len(models)}")
+                errors = []
+                for seed in range(rom_seeds):
+                    with warnings.catch_warnings():
+                        # a candidate outside its training ranges is scored as it runs
+                        warnings.simplefilter("ignore")
+                        outflow, _, _ = evaluate.run_storage("rom", scene, model, seed=seed,
+                                                             options=options)
+                    errors += evaluate.ensemble_score(outflow, references, t0,
+                                                      t1)["tracking_errors"]
+                scores[key]["scenes"][name] = evaluate.spread(errors)
+    for entry in scores.values():
+        entry["tracking_error"] = float(np.mean([s["mean"] for s in entry["scenes"].values()]))
+    return scores
