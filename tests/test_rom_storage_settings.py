@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_rom import CONTAINER, trained, write_design  # noqa: E402,F401
+from test_rom import CONTAINER, GRID, synthetic_training, write_design  # noqa: E402
 
 from cosim.errors import ValidationError  # noqa: E402
 from surrogate.rom import evaluate  # noqa: E402
@@ -18,17 +18,16 @@ from surrogate.rom.storage import RomStorage  # noqa: E402
 SETTINGS = {"packing": "none", "packing_density": 1200.0, "landing_spread": 1.5}
 
 
-def test_the_storage_takes_the_models_settings_unless_told_otherwise(trained, tmp_path):
-    model = trained[0]
+def test_the_storage_takes_the_models_settings_unless_told_otherwise(tmp_path):
+    mass, q_out, q_in, velocity = synthetic_training()
+    model = RomModel(GRID, n_mass_modes=6, n_velocity_modes=6, ridge=1e-3,
+                     container=CONTAINER).fit(mass, q_out, q_in, velocity)
     plain = RomStorage(model, surface="rule")
     assert (plain.packing, plain.packing_density, plain.landing_spread) == ("avalanche", None,
                                                                             0.0)
     assert plain.container.areal_density == CONTAINER.areal_density
     model.storage_settings = dict(SETTINGS)
-    try:
-        loaded = RomModel.load(model.save(tmp_path / "set.npz"))
-    finally:
-        model.storage_settings = {}
+    loaded = RomModel.load(model.save(tmp_path / "set.npz"))
     assert loaded.storage_settings == SETTINGS
     storage = RomStorage(loaded, surface="rule")
     assert (storage.packing, storage.packing_density, storage.landing_spread) == (
