@@ -51,8 +51,13 @@ def test_the_shipped_model_is_small_and_names_what_it_was_trained_on(shipped):
 @pytest.mark.slow  # about 30 s: the final fit on the whole paper design
 def test_a_reduced_regeneration_predicts_what_the_shipped_model_predicts(shipped, tmp_path):
     data = ROOT / shipped.provenance["data"]
+    options = shipped.provenance["options"]
     again = evaluate.train(data, tmp_path / "again.npz", shipped.n_mass_modes,
-                           shipped.n_velocity_modes, shipped.ridge)
+                           shipped.n_velocity_modes, shipped.ridge,
+                           registration=options.get("registration"),
+                           storage_options={k: options.get(k)
+                                            for k in evaluate.STORAGE_SETTINGS})
+    assert again.storage_settings == shipped.storage_settings
     assert again.n_samples == shipped.n_samples
     for name, (low, high) in shipped.ranges.items():
         assert again.ranges[name] == pytest.approx([low, high], rel=1e-9, abs=1e-12), name
