@@ -123,6 +123,8 @@ CASES = [
      "--rom-seeds: must be only with --validation"),
     ("rom train --data {bad}/folder --out {out}/m.npz --landing-spread -1",
      "landing_spread: must be finite and >= 0 m"),
+    ("rom train --data {bad}/folder --out {out}/m.npz --dispersivity -1",
+     "dispersivity: must be finite and >= 0 m"),
     ("rom train --data {design} --out {out}/m.npz --validation {bad}/folder",
      "validation: must be the data folder of an exported held-out design"),
     ("rom evaluate --model {bad}/text.md --data {bad}/folder", "model: must be a MineTwin ROM"),

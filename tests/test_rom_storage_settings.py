@@ -39,7 +39,7 @@ def test_the_storage_takes_the_models_settings_unless_told_otherwise(tmp_path):
     assert (told.packing, told.packing_density, told.landing_spread) == ("column", 1500.0, 0.0)
 
 
-def test_train_keeps_the_storage_options_and_refuses_bad_ones(tmp_path):
+def test_train_keeps_the_storage_options_and_a_given_walk_and_refuses_bad_ones(tmp_path):
     data = write_design(tmp_path / "design")
     model = evaluate.train(data, tmp_path / "m.npz", n_mass_modes=2, n_velocity_modes=2,
                            ridge=1.0, storage_options={"packing": "column",
@@ -47,6 +47,12 @@ def test_train_keeps_the_storage_options_and_refuses_bad_ones(tmp_path):
     assert model.storage_settings == {"packing": "column"}
     assert RomModel.load(tmp_path / "m.npz").storage_settings == {"packing": "column"}
     assert RomModel.load(tmp_path / "m.npz").provenance["options"]["packing"] == "column"
+    walked = evaluate.train(data, None, n_mass_modes=2, n_velocity_modes=2, ridge=1.0,
+                            dispersivity=0.25)
+    assert walked.dispersivity == 0.25 and walked.validation["dispersivity"]["given"]
+    with pytest.raises(ValidationError, match="dispersivity"):
+        evaluate.train(data, None, n_mass_modes=2, n_velocity_modes=2, ridge=1.0,
+                       dispersivity=-0.1)
     for options, field in (({"packing": "heap"}, "packing"),
                            ({"packing_density": 0.0}, "packing_density"),
                            ({"landing_spread": -1.0}, "landing_spread"),

@@ -24,6 +24,10 @@ def register(subparsers) -> None:
                        help="share of the feeder's mean outlet speed below which a cell of "
                             "the ROM's field rests, kept in the model file (default: fitted "
                             "on the design by Youden's index, surrogate.rom.rest; 0: off)")
+    train.add_argument("--dispersivity", type=float, default=None, metavar="M",
+                       help="the bulk's random walk [m], kept in the model file (default: "
+                            "the DEM's measured dispersivity less what the ROM's own scheme "
+                            "shows under the storage options; 0: no walk)")
     train.add_argument("--validation", default=None, metavar="DIR",
                        help="choose the options left open by the tracking error on the "
                             "scenes of this exported held-out design (e.g. "
@@ -189,7 +193,8 @@ def run_train(args) -> int:
                   storage_options={"packing": args.packing,
                                    "packing_density": args.packing_density,
                                    "landing_spread": args.landing_spread},
-                  rom_seeds=VALIDATION_ROM_SEEDS if args.rom_seeds is None else args.rom_seeds)
+                  rom_seeds=VALIDATION_ROM_SEEDS if args.rom_seeds is None else args.rom_seeds,
+                  dispersivity=args.dispersivity)
     print(f"trained on {model.n_samples} samples, grid {model.grid.nx}x{model.grid.ny}, "
           f"modes {model.n_mass_modes}/{model.n_velocity_modes}, ridge {model.ridge:g}, "
           f"resting share {model.rest_fraction:g}; wrote {args.out}")

@@ -514,14 +514,14 @@ def rom_numerical_dispersivity(model: RomModel, directory, samples: dict,
 
 def _completed(model: RomModel, directory, samples: dict, record: dict,
                rest_fraction: float | None, storage_options: dict, progress=None,
-               residuals: dict | None = None) -> RomModel:
+               residuals: dict | None = None, walk: float | None = None) -> RomModel:
     """``model`` (fitted) as ``train`` ships it: its ``storage_settings``, its
     ``validation`` (``record``, then the residual's training range: the larger of
     the training states' own and ``leave_one_run_out_residual``, kept in
     ``residuals`` by mass modes when given), the design's DEM, then the random
     walk's dispersivity (what the ROM's own scheme under those settings leaves
-    short of the DEM's dispersion) and the resting bulk's share (fitted unless
-    ``rest_fraction`` is given)."""
+    short of the DEM's dispersion, unless ``walk`` [m] is given) and the resting
+    bulk's share (fitted unless ``rest_fraction`` is given)."""
     model.storage_settings = dict(storage_options)
     model.validation = dict(record)
     if np.unique(samples["run"]).size > 1:
@@ -535,7 +535,10 @@ def _completed(model: RomModel, directory, samples: dict, record: dict,
         model.validation["mass_distribution_residual_max"] = {"training_states": seen,
                                                               "unseen_runs": unseen}
     model.dem_config = doe.read_meta(directory).get("dem_config")
-    if "dispersion_fit" in samples:
+    if walk is not None:
+        model.dispersivity = walk
+        model.validation["dispersivity"] = {"applied": walk, "given": True}
+    elif "dispersion_fit" in samples:
         measured = dispersivity(samples["dispersion_fit"])
         own = rom_numerical_dispersivity(model, directory, samples)
         # independent random walks add their diffusivities: the walk adds only
@@ -594,7 +597,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
           flux_floor: float | None = None, fill_law: str | None = None,
           rest_fraction: float | None = None, registration: str | None = None,
           validation=None, storage_options: dict | None = None,
-          rom_seeds: int = VALIDATION_ROM_SEEDS) -> RomModel:
+          rom_seeds: int = VALIDATION_ROM_SEEDS,
+          dispersivity: float | None = None) -> RomModel:
     """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it).
 
     ``target`` (default "velocity"): the field the regression fits (``RomModel``);
@@ -608,7 +612,9 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     (``surrogate.rom.packing.settled_density``), the candidates
     ``REGISTERED_CANDIDATES``. ``storage_options`` (default none;
     ``STORAGE_SETTINGS``): the ``RomStorage`` options the model is chosen under
-    and keeps as its ``storage_settings``.
+    and keeps as its ``storage_settings``. ``dispersivity`` [m] (default None:
+    the DEM's measured dispersivity less what the ROM's own scheme shows,
+    ``rom_numerical_dispersivity``; 0: no random walk): the bulk's random walk.
 
     Options left ``None`` are chosen among ``MODEL_CANDIDATES`` by the
     smallest leave-one-run-out velocity error (recorded in the model's
@@ -627,6 +633,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     storage_options = check_storage_options(storage_options)
     if rest_fraction is not None:
         rest_fraction = float(check_finite_range("rest_fraction", rest_fraction, 0.0, 1.0))
+    if dispersivity is not None:
+        dispersivity = float(check_finite_range("dispersivity", dispersivity, 0.0, unit="m"))
     meta = doe.read_meta(directory)
     samples = doe.load_samples(directory)
     grid = Grid.from_dict(meta["grid"])
@@ -670,7 +678,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
             fitted[candidate] = _completed(
                 _fit(grid, container, samples, everything, *candidate, bases=bases,
                      registration=registered),
-                directory, samples, {}, rest_fraction, storage_options, residuals=residuals)
+                directory, samples, {}, rest_fraction, storage_options, residuals=residuals,
+                walk=dispersivity)
         scores = tracking_scores(fitted, validation, storage_options, rom_seeds, progress)
         best = min(scores, key=lambda key: scores[key]["tracking_error"])
         model = fitted[best]
@@ -702,7 +711,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
                                 flux_floor=best[3] if flux else FLUX_FLOOR, fill_law=fill_law,
                                 registration=registered),
                            directory, samples, validation_record, rest_fraction,
-                           storage_options, progress)
+                           storage_options, progress, walk=dispersivity)
     else:
         model.validation = {**validation_record, **model.validation}
     if out is not None:
@@ -714,6 +723,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
             options.update(fill_law=fill_law)
         if rest_fraction is not None:
             options.update(rest_fraction=rest_fraction)
+        if dispersivity is not None:
+            options.update(dispersivity=dispersivity)
         if registration is not None:
             options.update(registration=registration)
         if validation is not None:
