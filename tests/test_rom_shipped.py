@@ -1,4 +1,6 @@
-"""The paper-scale ROM that ships with the package (surrogate/rom/data/paper_rom.npz).
+"""The paper-scale ROMs that ship with the package: surrogate/rom/data/paper_rom.npz
+(the default) and paper_rom_registered.npz (the registered fit chosen on the
+validation scene, an option).
 
 Its header's provenance names the committed paper design it was trained on (the
 SHA-256 of the very files in the repository), the design's runs and seeds, the
@@ -21,7 +23,7 @@ import pytest
 from surrogate.rom import doe, evaluate, paper_design
 from surrogate.rom.model import RomModel
 from surrogate.rom.provenance import data_digest
-from surrogate.rom.storage import DEFAULT_MODEL, RomStorage
+from surrogate.rom.storage import DEFAULT_MODEL, REGISTERED_MODEL, RomStorage
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -31,8 +33,16 @@ def shipped():
     return RomModel.load(DEFAULT_MODEL)
 
 
-def test_the_shipped_model_is_small_and_names_what_it_was_trained_on(shipped):
-    assert DEFAULT_MODEL.stat().st_size <= 10e6
+@pytest.fixture(scope="module", params=[DEFAULT_MODEL, REGISTERED_MODEL],
+                ids=["default", "registered"])
+def model_file(request):
+    """Each model file that ships: the default and the registered option."""
+    return request.param
+
+
+def test_the_shipped_model_is_small_and_names_what_it_was_trained_on(model_file):
+    assert model_file.stat().st_size <= 10e6
+    shipped = RomModel.load(model_file)
     provenance = shipped.provenance
     data = ROOT / provenance["data"]
     assert data.resolve() == paper_design.DATA_DIR.resolve()
@@ -46,17 +56,39 @@ def test_the_shipped_model_is_small_and_names_what_it_was_trained_on(shipped):
         f"minetwin rom train --data {provenance['data']} --out ")
     meta = doe.read_meta(data)
     assert shipped.grid.to_dict() == meta["grid"] and shipped.dem_config == meta["dem_config"]
+    validation = provenance["options"].get("validation")
+    if validation is not None:  # the scenes the options were chosen on, unchanged
+        assert provenance["validation_sha256"] == data_digest(ROOT / validation)
+        assert shipped.validation["selected_by"] == "tracking on validation scenes"
+
+
+def test_the_registered_option_runs_as_it_was_chosen():
+    """The registered option keeps the storage settings it was chosen under, and the
+    storage takes them; its choice is the best-tracking candidate it records."""
+    model = RomModel.load(REGISTERED_MODEL)
+    assert model.registration == "height"
+    storage = RomStorage(REGISTERED_MODEL)
+    assert (storage.packing, storage.landing_spread) == ("none", 2.9)
+    assert storage.packing_density == model.storage_settings["packing_density"] == \
+        pytest.approx(564.1891533925966, rel=1e-15)
+    assert model.dispersivity == 0.0 and model.provenance["options"]["dispersivity"] == 0.0
+    record = model.validation
+    chosen = f"{model.n_mass_modes}/{model.n_velocity_modes}/{model.ridge:g}"
+    assert record["candidates"][chosen] == record["validation_tracking_error"] == \
+        min(record["candidates"].values())
 
 
 @pytest.mark.slow  # about 30 s: the final fit on the whole paper design
-def test_a_reduced_regeneration_predicts_what_the_shipped_model_predicts(shipped, tmp_path):
+def test_a_reduced_regeneration_predicts_what_the_shipped_model_predicts(model_file, tmp_path):
+    shipped = RomModel.load(model_file)
     data = ROOT / shipped.provenance["data"]
     options = shipped.provenance["options"]
     again = evaluate.train(data, tmp_path / "again.npz", shipped.n_mass_modes,
                            shipped.n_velocity_modes, shipped.ridge,
                            registration=options.get("registration"),
                            storage_options={k: options.get(k)
-                                            for k in evaluate.STORAGE_SETTINGS})
+                                            for k in evaluate.STORAGE_SETTINGS},
+                           dispersivity=options.get("dispersivity"))
     assert again.storage_settings == shipped.storage_settings
     assert again.n_samples == shipped.n_samples
     for name, (low, high) in shipped.ranges.items():

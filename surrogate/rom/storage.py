@@ -203,6 +203,13 @@ DEFAULT_MODEL = Path(__file__).parent / "data" / "paper_rom.npz"
 """The shipped paper-scale ROM (``minetwin rom train`` on the committed paper design;
 the command that regenerates it is in its header's ``provenance``)."""
 
+REGISTERED_MODEL = Path(__file__).parent / "data" / "paper_rom_registered.npz"
+"""A shipped option: the registered fit chosen by tracking on the validation scene
+(``minetwin rom train --registration height --validation ...``; its storage settings:
+no packing at the design's settled density, landing spread 2.9 m; the regenerating
+command in its ``provenance``; surrogate/rom/README.md, "Chosen on the validation
+scene")."""
+
 RANGE_CHECK_INTERVAL = 10.0
 """Seconds between checks of the ROM inputs against the training ranges."""
 
