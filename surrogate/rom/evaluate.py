@@ -571,24 +571,17 @@ STORAGE_SETTINGS = ("packing", "packing_density", "landing_spread")
 
 
 def check_storage_options(options: dict | None) -> dict:
-    """``options`` (``STORAGE_SETTINGS`` only, None values dropped), checked by
-    ``RomStorage``'s own rules; anything else is refused naming it."""
+    """``options`` (``STORAGE_SETTINGS`` only, None values dropped) as ``RomStorage``
+    takes them, checked by its own rules; anything else is refused naming it."""
+    from surrogate.rom.storage import RomStorage
+
     options = {k: v for k, v in (options or {}).items() if v is not None}
     unknown = sorted(set(options) - set(STORAGE_SETTINGS))
     if unknown:
         raise ValidationError("storage_options", f"only {', '.join(STORAGE_SETTINGS)}",
                               f"got {', '.join(unknown)}")
-    from surrogate.rom.storage import PACKINGS
-
-    if "packing" in options and options["packing"] not in PACKINGS:
-        raise ValidationError("packing", f"one of {PACKINGS}", f"got {options['packing']!r}")
-    if "packing_density" in options:
-        options["packing_density"] = float(check_finite_range(
-            "packing_density", options["packing_density"], 0.0, low_open=True, unit="kg/m^2"))
-    if "landing_spread" in options:
-        options["landing_spread"] = float(check_finite_range(
-            "landing_spread", options["landing_spread"], 0.0, unit="m"))
-    return options
+    storage = RomStorage(surface="rule", **options)  # no surface DEM: the checks only
+    return {key: getattr(storage, key) for key in options}
 
 
 def train(directory, out=None, n_mass_modes: int | None = None,

@@ -31,11 +31,6 @@ import numpy as np
 from surrogate.rom import evaluate, heldout_layout
 
 
-def _say(progress, message: str) -> None:
-    if progress is not None:
-        progress(message)
-
-
 def tracking_scores(models: dict, data, storage_options: dict | None = None,
                     rom_seeds: int = 2, progress=None) -> dict:
     """Each model's tracking error on the validation scenes of ``data``.
@@ -56,7 +51,8 @@ def tracking_scores(models: dict, data, storage_options: dict | None = None,
             t0 = float(replicas[0]["t0"])
             t1 = t0 + evaluate.scenario_duration(scene)
             for number, (key, model) in enumerate(models.items(), start=1):
-                _say(progress, f"validation scene {name}: candidate {number} of {len(models)}")
+                if progress is not None:
+                    progress(f"validation scene {name}: candidate {number} of {len(models)}")
                 errors = []
                 for seed in range(rom_seeds):
                     with warnings.catch_warnings():
