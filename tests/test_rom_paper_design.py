@@ -485,7 +485,8 @@ def test_train_chooses_by_tracking_on_validation_scenes(reduced_run, heldout_run
     assert (storage.packing, storage.landing_spread) == ("none", 0.5)
     alone = evaluate.train(tmp_path / "train_data", None, n_mass_modes=2, n_velocity_modes=2,
                            ridge=model.ridge, storage_options=options)
-    again = validation.tracking_scores({"chosen": alone}, tmp_path / "validation", options, 1)
+    assert alone.storage_settings == options  # the scores run it under them
+    again = validation.tracking_scores({"chosen": alone}, tmp_path / "validation", 1)
     assert again["chosen"]["tracking_error"] == record["validation_tracking_error"]
 
 

@@ -84,8 +84,9 @@ def register(subparsers) -> None:
     evaluate.add_argument("--packing-density", type=float, default=None, metavar="KG_M2",
                           help="areal density [kg/m^2] the ROM packs its bulk at "
                                "(RomStorage's packing_density; default: the model "
-                               "file's, else its container's; the DEM's mean settled density of a design: "
-                               "python -m surrogate.rom.packing --data DIR)")
+                               "file's, else its container's; the DEM's mean settled "
+                               "density of a design: python -m surrogate.rom.packing "
+                               "--data DIR)")
     evaluate.add_argument("--rest-fraction", type=float, default=None, metavar="SHARE",
                           help="share of the feeder's mean outlet speed below which a cell "
                                "of the ROM's field rests (RomStorage's rest_fraction; default: "
@@ -114,7 +115,8 @@ def register(subparsers) -> None:
                         help="paper (default), reduced, paper_heldout (the held-out "
                              "scenes), paper_heldout_nonsmooth (those scenes by the "
                              "nonsmooth DEM, one run each), paper_validation (a scene "
-                             "for choosing among fitted models, rom train --validation), paper_rock and "
+                             "for choosing among fitted models, rom train "
+                             "--validation), paper_rock and "
                              "paper_rock_inflow (a held-out pile at rock stiffness, "
                              "drained, or fed and drained), paper_rock_nonsmooth and "
                              "paper_rock_inflow_nonsmooth (those by the nonsmooth DEM) "

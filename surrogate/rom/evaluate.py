@@ -512,16 +512,17 @@ def rom_numerical_dispersivity(model: RomModel, directory, samples: dict,
     return dispersivity(fits)
 
 
-def _completed(model: RomModel, directory, samples: dict, record: dict,
-               rest_fraction: float | None, storage_options: dict, progress=None,
-               residuals: dict | None = None, walk: float | None = None) -> RomModel:
+def _completed(model: RomModel, directory, samples: dict, dem_config: dict | None,
+               record: dict, rest_fraction: float | None, storage_options: dict,
+               progress=None, residuals: dict | None = None,
+               walk: float | None = None) -> RomModel:
     """``model`` (fitted) as ``train`` ships it: its ``storage_settings``, its
     ``validation`` (``record``, then the residual's training range: the larger of
     the training states' own and ``leave_one_run_out_residual``, kept in
-    ``residuals`` by mass modes when given), the design's DEM, then the random
-    walk's dispersivity (what the ROM's own scheme under those settings leaves
-    short of the DEM's dispersion, unless ``walk`` [m] is given) and the resting
-    bulk's share (fitted unless ``rest_fraction`` is given)."""
+    ``residuals`` by mass modes when given), the design's DEM ``dem_config``,
+    then the random walk's dispersivity (what the ROM's own scheme under those
+    settings leaves short of the DEM's dispersion, unless ``walk`` [m] is given)
+    and the resting bulk's share (fitted unless ``rest_fraction`` is given)."""
     model.storage_settings = dict(storage_options)
     model.validation = dict(record)
     if np.unique(samples["run"]).size > 1:
@@ -534,7 +535,7 @@ def _completed(model: RomModel, directory, samples: dict, record: dict,
         model.ranges["mass_distribution_residual"] = [0.0, max(seen, unseen)]
         model.validation["mass_distribution_residual_max"] = {"training_states": seen,
                                                               "unseen_runs": unseen}
-    model.dem_config = doe.read_meta(directory).get("dem_config")
+    model.dem_config = dem_config
     if walk is not None:
         model.dispersivity = walk
         model.validation["dispersivity"] = {"applied": walk, "given": True}
@@ -671,9 +672,9 @@ def train(directory, out=None, n_mass_modes: int | None = None,
             fitted[candidate] = _completed(
                 _fit(grid, container, samples, everything, *candidate, bases=bases,
                      registration=registered),
-                directory, samples, {}, rest_fraction, storage_options, residuals=residuals,
-                walk=dispersivity)
-        scores = tracking_scores(fitted, validation, storage_options, rom_seeds, progress)
+                directory, samples, meta.get("dem_config"), {}, rest_fraction,
+                storage_options, residuals=residuals, walk=dispersivity)
+        scores = tracking_scores(fitted, validation, rom_seeds, progress)
         best = min(scores, key=lambda key: scores[key]["tracking_error"])
         model = fitted[best]
         validation_record = {
@@ -703,8 +704,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         model = _completed(_fit(grid, container, samples, everything, *best[:3], target=target,
                                 flux_floor=best[3] if flux else FLUX_FLOOR, fill_law=fill_law,
                                 registration=registered),
-                           directory, samples, validation_record, rest_fraction,
-                           storage_options, progress, walk=dispersivity)
+                           directory, samples, meta.get("dem_config"), validation_record,
+                           rest_fraction, storage_options, progress, walk=dispersivity)
     else:
         model.validation = {**validation_record, **model.validation}
     if out is not None:

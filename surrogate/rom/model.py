@@ -560,7 +560,8 @@ class RomModel:
         """The file's JSON header; ``target`` and ``flux_floor`` are written for a flux
         fit only (a file without them is a velocity fit, as every file before them),
         ``fill_law``, ``rest_fraction``, ``registration`` (with
-        ``registration_density``) and ``storage_settings`` only when set (a file without ``rest_fraction``
+        ``registration_density``) and ``storage_settings`` only when set (a file
+        without ``rest_fraction``
         has the resting bulk off, as every file before it)."""
         header = self._header()
         if self.rest_fraction > 0.0:

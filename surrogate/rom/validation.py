@@ -17,9 +17,9 @@ A validation data folder is an exported held-out design
 (``paper_design.Design.keep_start_states``; ``minetwin rom design --design
 paper_validation --export``). Each candidate runs through every scene laid out
 from it (``heldout_layout``) once per ROM seed 0 .. ``rom_seeds`` - 1 under the
-given ``RomStorage`` options, and is scored against every stable DEM replica
-of the scene (``evaluate.ensemble_score``); its score is the mean over scenes
-of the mean over (seed, replica) pairs.
+storage settings it keeps (``RomModel.storage_settings``), and is scored
+against every stable DEM replica of the scene (``evaluate.ensemble_score``);
+its score is the mean over scenes of the mean over (seed, replica) pairs.
 """
 
 from __future__ import annotations
@@ -31,17 +31,15 @@ import numpy as np
 from surrogate.rom import evaluate, heldout_layout
 
 
-def tracking_scores(models: dict, data, storage_options: dict | None = None,
-                    rom_seeds: int = 2, progress=None) -> dict:
+def tracking_scores(models: dict, data, rom_seeds: int = 2, progress=None) -> dict:
     """Each model's tracking error on the validation scenes of ``data``.
 
-    ``models``: ``{key: RomModel}``; ``storage_options``: ``RomStorage``
-    options every run uses (default none); ``rom_seeds``: 1-100 (default 2).
+    ``models``: ``{key: RomModel}``, each run by ``RomStorage`` as it ships (its
+    ``storage_settings``); ``rom_seeds``: 1-100 (default 2).
     Returns ``{key: {"tracking_error": mean over scenes, "scenes": {scene:
     spread over (seed, replica) pairs}}}`` (``evaluate.spread``).
     """
     rom_seeds = evaluate.check_rom_seeds(rom_seeds)
-    options = dict(storage_options or {})
     scores = {key: {"scenes": {}} for key in models}
     with heldout_layout.scenes_laid_out(data) as (folder, names):
         for name in names:
@@ -58,8 +56,7 @@ def tracking_scores(models: dict, data, storage_options: dict | None = None,
                     with warnings.catch_warnings():
                         # a candidate outside its training ranges is scored as it runs
                         warnings.simplefilter("ignore")
-                        outflow, _, _ = evaluate.run_storage("rom", scene, model, seed=seed,
-                                                             options=options)
+                        outflow, _, _ = evaluate.run_storage("rom", scene, model, seed=seed)
                     errors += evaluate.ensemble_score(outflow, references, t0,
                                                       t1)["tracking_errors"]
                 scores[key]["scenes"][name] = evaluate.spread(errors)
