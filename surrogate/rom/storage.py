@@ -141,9 +141,9 @@ packing_density : float, optional
     ``storage_settings``, else the model container's ``areal_density``, the 90th
     percentile of the base pile's cell masses, ``doe.areal_density``). Given, the
     storage runs in a copy of the container with this density, so everything
-    that uses the bulk density uses it: the column packing and avalanches (``surface.settle``), the surface
-    heights and deposits (``surface.surface_heights``, ``deposit``), the packing
-    columns' width (``surface.column_width``), the projection's bulk cells
+    that uses the bulk density uses it: the column packing and avalanches
+    (``surface.settle``), the surface heights and deposits
+    (``surface.surface_heights``, ``deposit``), the packing columns' width (``surface.column_width``), the projection's bulk cells
     (``fill`` times a full cell) and its feeder outflow q_out / rho_A
     (``transport.project``), the kinematic field's flux and
     ``bulk_areal_density``. The model's regression keeps its own container
