@@ -143,10 +143,10 @@ packing_density : float, optional
     storage runs in a copy of the container with this density, so everything
     that uses the bulk density uses it: the column packing and avalanches
     (``surface.settle``), the surface heights and deposits
-    (``surface.surface_heights``, ``deposit``), the packing columns' width (``surface.column_width``), the projection's bulk cells
-    (``fill`` times a full cell) and its feeder outflow q_out / rho_A
-    (``transport.project``), the kinematic field's flux and
-    ``bulk_areal_density``. The model's regression keeps its own container
+    (``surface.surface_heights``, ``deposit``), the packing columns' width
+    (``surface.column_width``), the projection's bulk cells (``fill`` times a
+    full cell) and its feeder outflow q_out / rho_A (``transport.project``), the
+    kinematic field's flux and ``bulk_areal_density``. The model's regression keeps its own container
     (``RomModel.full_cell_mass``, part of the fit). The DEM's mean settled
     density on a training design: ``surrogate.rom.packing.settled_density``
     (paper design: 564.2 kg/m^2, 0.908 of 621.1; surrogate/rom/README.md,
