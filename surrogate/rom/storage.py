@@ -146,11 +146,12 @@ packing_density : float, optional
     (``surface.surface_heights``, ``deposit``), the packing columns' width
     (``surface.column_width``), the projection's bulk cells (``fill`` times a
     full cell) and its feeder outflow q_out / rho_A (``transport.project``), the
-    kinematic field's flux and ``bulk_areal_density``. The model's regression keeps its own container
-    (``RomModel.full_cell_mass``, part of the fit). The DEM's mean settled
-    density on a training design: ``surrogate.rom.packing.settled_density``
-    (paper design: 564.2 kg/m^2, 0.908 of 621.1; surrogate/rom/README.md,
-    "Packing at the DEM's mean settled density").
+    kinematic field's flux and ``bulk_areal_density``. The model's regression
+    keeps its own container (``RomModel.full_cell_mass``, part of the fit). The
+    DEM's mean settled density on a training design:
+    ``surrogate.rom.packing.settled_density`` (paper design: 564.2 kg/m^2, 0.908
+    of 621.1; surrogate/rom/README.md, "Packing at the DEM's mean settled
+    density").
 rest_fraction : float or None
     Share [-] of the feeder's mean outlet speed q_out / (rho_A W) below which
     a cell of the predicted field is at rest (its velocity 0) before the
