@@ -12,7 +12,7 @@ import pytest
 from cosim.errors import ValidationError
 from surrogate.rom import column_profile, rest
 from surrogate.rom.model import RomModel
-from surrogate.rom.storage import DEFAULT_MODEL, RomStorage
+from surrogate.rom.storage import DEFAULT_MODEL, FIXED_GRID_MODEL, REGISTERED_MODEL, RomStorage
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "surrogate" / "rom" / "data"
@@ -40,11 +40,13 @@ def test_cells_slower_than_the_share_of_the_outlet_speed_rest():
         rest.at_rest(field, 2000.0, point, 0.08)
 
 
-def test_the_share_is_fitted_on_the_training_design_by_youdens_index():
-    model = RomModel.load(DEFAULT_MODEL)
+@pytest.mark.parametrize("model_file, share", [(FIXED_GRID_MODEL, 0.08), (REGISTERED_MODEL, 0.06)],
+                         ids=["fixed_grid", "registered"])
+def test_the_share_is_fitted_on_the_training_design_by_youdens_index(model_file, share):
+    model = RomModel.load(model_file)
     result = rest.fit(DATA / "paper_design", model)
     # what `rom train` fitted and the shipped file keeps
-    assert result["best"] == model.rest_fraction == 0.08
+    assert result["best"] == model.rest_fraction == share
     assert model.validation["rest"] == result
     assert result["youden"] == pytest.approx(
         [r - m for r, m in zip(result["rest_stopped"], result["moving_stopped"])])
@@ -80,12 +82,13 @@ def test_the_model_file_keeps_its_share_and_a_file_without_one_is_off(tmp_path):
 
 def test_the_storage_rests_its_predicted_field_and_refuses_a_bad_share():
     storage = RomStorage()  # the model file's share
-    assert storage.rest_fraction == storage.model.rest_fraction == 0.08
+    share = RomModel.load(DEFAULT_MODEL).rest_fraction
+    assert storage.rest_fraction == storage.model.rest_fraction == share > 0
     mass = np.zeros(storage.model.grid.shape)
     mass[:10, 30:50] = storage.model.full_cell_mass
     plain = storage.model.predict(mass, 2000.0, 2000.0, check=False)
     assert np.array_equal(storage.predicted_field(mass, 2000.0, 2000.0),
-                          rest.at_rest(plain, 2000.0, storage.container, 0.08))
+                          rest.at_rest(plain, 2000.0, storage.container, share))
     assert not np.array_equal(storage.predicted_field(mass, 2000.0, 2000.0), plain)
     assert np.array_equal(RomStorage(rest_fraction=0.0).predicted_field(mass, 2000.0, 2000.0),
                           plain)  # off

@@ -1,6 +1,6 @@
 """The paper-scale ROMs that ship with the package: surrogate/rom/data/paper_rom.npz
-(the default) and paper_rom_registered.npz (the registered fit chosen on the
-validation scene, an option).
+(the fixed grid, the default) and paper_rom_registered.npz (the registered fit
+chosen on the validation scene, an option).
 
 Its header's provenance names the committed paper design it was trained on (the
 SHA-256 of the very files in the repository), the design's runs and seeds, the
@@ -23,7 +23,7 @@ import pytest
 from surrogate.rom import doe, evaluate, paper_design
 from surrogate.rom.model import RomModel
 from surrogate.rom.provenance import data_digest
-from surrogate.rom.storage import DEFAULT_MODEL, REGISTERED_MODEL, RomStorage
+from surrogate.rom.storage import DEFAULT_MODEL, FIXED_GRID_MODEL, REGISTERED_MODEL, RomStorage
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,10 +33,10 @@ def shipped():
     return RomModel.load(DEFAULT_MODEL)
 
 
-@pytest.fixture(scope="module", params=[DEFAULT_MODEL, REGISTERED_MODEL],
-                ids=["default", "registered"])
+@pytest.fixture(scope="module", params=[FIXED_GRID_MODEL, REGISTERED_MODEL],
+                ids=["fixed_grid", "registered"])
 def model_file(request):
-    """Each model file that ships: the default and the registered option."""
+    """Each model file that ships: the fixed grid and the registered fit."""
     return request.param
 
 
@@ -108,6 +108,7 @@ def test_a_reduced_regeneration_predicts_what_the_shipped_model_predicts(model_f
 
 
 def test_the_rom_storage_runs_on_the_shipped_model_by_default(shipped):
+    assert DEFAULT_MODEL == FIXED_GRID_MODEL
     storage = RomStorage()
     assert storage.model.provenance == shipped.provenance
     config = paper_design.paper_config()

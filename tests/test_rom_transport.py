@@ -6,7 +6,7 @@ import pytest
 from cosim.errors import ValidationError
 from surrogate.rom.container import Container
 from surrogate.rom.grid import Grid
-from surrogate.rom.storage import RomStorage
+from surrogate.rom.storage import FIXED_GRID_MODEL, RomStorage
 from surrogate.rom.transport import advect_faces, divergence, project, sample_faces
 
 CONTAINER = Container(x_min=-10.0, x_max=10.0, floor=0.0, outlet_x=0.0, inlet_x=1.0,
@@ -114,7 +114,9 @@ def test_bad_transport_options_are_refused_by_name():
         RomStorage(transport="magic")
     with pytest.raises(ValidationError, match="packing"):
         RomStorage(transport="projected", packing="shake")
-    assert RomStorage().transport == "balanced" and RomStorage().packing == "avalanche"
+    # a model file without storage settings runs the built-in defaults
+    fixed_grid = RomStorage(FIXED_GRID_MODEL)
+    assert fixed_grid.transport == "balanced" and fixed_grid.packing == "avalanche"
     with pytest.raises(ValidationError, match="relax"):
         RomStorage(transport="projected", relax=0.0)
 

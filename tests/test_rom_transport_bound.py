@@ -10,7 +10,7 @@ from cosim.errors import ValidationError
 from surrogate.rom import evaluate, heldout_layout, metrics, transport_bound
 from surrogate.rom.grid import Grid
 from surrogate.rom.model import RomModel
-from surrogate.rom.storage import DEFAULT_MODEL
+from surrogate.rom.storage import FIXED_GRID_MODEL
 
 ROOT = Path(__file__).resolve().parents[1]
 HELDOUT = ROOT / "surrogate" / "rom" / "data" / "paper_heldout"
@@ -48,7 +48,7 @@ def test_window_distances_average_to_the_tracking_error():
 
 
 def test_a_field_off_the_model_grid_or_a_negative_window_is_refused():
-    model = RomModel.load(DEFAULT_MODEL)
+    model = RomModel.load(FIXED_GRID_MODEL)
     grid = model.grid
     good = np.zeros((2, grid.ny, grid.nx, 2))
     mass = np.zeros(good.shape[:-1])
@@ -68,7 +68,7 @@ def test_the_replayed_field_replaces_the_prediction():
     window mean, not the fit."""
     with heldout_layout.scenes_laid_out(HELDOUT, ["heldout_q2000"]) as (folder, _):
         replica = evaluate.stable_replicas(folder / "heldout_q2000")[0]
-    model = RomModel.load(DEFAULT_MODEL)
+    model = RomModel.load(FIXED_GRID_MODEL)
     storage = transport_bound.ReplayedField(model, field_time=replica["field_time"],
                                             field_velocity=replica["field_velocity"],
                                             field_mass=replica["field_mass"], half_window=15.0)
@@ -94,7 +94,7 @@ def test_a_projection_keeps_what_the_modes_span_and_drops_the_rest():
 
 def test_the_first_modes_are_the_shipped_models_velocity_basis():
     """``modes:4`` replays in the basis the shipped 4-mode fit predicts in."""
-    model = RomModel.load(DEFAULT_MODEL)
+    model = RomModel.load(FIXED_GRID_MODEL)
     basis = transport_bound.velocity_basis()
     own = model.arrays["velocity_modes"]  # (2 cells, 4), orthonormal columns
     assert own.shape[1] == 4
@@ -105,7 +105,7 @@ def test_the_first_modes_are_the_shipped_models_velocity_basis():
 def test_the_fit_at_the_dem_state_is_the_models_prediction_there():
     with heldout_layout.scenes_laid_out(HELDOUT, ["heldout_q2000"]) as (folder, _):
         replica = evaluate.stable_replicas(folder / "heldout_q2000")[0]
-    model = RomModel.load(DEFAULT_MODEL)
+    model = RomModel.load(FIXED_GRID_MODEL)
     storage = transport_bound.FittedAtDemState(model, field_time=replica["field_time"],
                                                field_mass=replica["field_mass"],
                                                half_window=0.0)
@@ -120,7 +120,7 @@ def test_the_fit_at_the_dem_state_is_the_models_prediction_there():
 
 
 def test_modes_need_a_model_on_the_training_designs_grid(tmp_path, capsys):
-    shipped = RomModel.load(DEFAULT_MODEL)
+    shipped = RomModel.load(FIXED_GRID_MODEL)
     grid = Grid.covering(-10.0, 10.0, 0.0, 8.0, 1.0)
     rng = np.random.default_rng(0)
     small = RomModel(grid, 2, 2, 1.0, shipped.container).fit(
