@@ -37,6 +37,13 @@ def test_the_rom_is_scored_over_its_seeds_and_seed_0_is_the_single_run():
     # FIFO and mixing draw no random numbers: one run each, as before
     assert two["tracking_error"]["fifo"] == one["tracking_error"]["fifo"]
     assert two["tracking_error_spread"]["fifo"]["n"] == len(replicas)
+    # the pile's shape beside its outflow: the DEM's ends resting on its base (the
+    # committed replicas' last fields: exactly 0), the fixed grid's too (0 on every
+    # seed and held-out scene measured, seeds 0-4), under the limit either way
+    from surrogate.rom.hanging import HANGING_LIMIT
+
+    assert two["hanging_mass_share"]["dem"] == 0.0
+    assert 0.0 <= two["hanging_mass_share"]["rom"] <= HANGING_LIMIT
 
 
 def test_a_seed_count_outside_1_to_100_is_refused(tmp_path):

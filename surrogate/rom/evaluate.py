@@ -45,6 +45,7 @@ from cosim.storage import make_storage
 from surrogate.rom import doe, metrics, rest
 from surrogate.rom.dispersion import dispersivity
 from surrogate.rom.grid import Grid, mean_field
+from surrogate.rom.hanging import hanging_share, hanging_share_of
 from surrogate.rom.model import (FLUX_FLOOR, FLUX_FLOORS, RomModel, flux_samples, pod_basis,
                                   pod_residual)
 from surrogate.rom.packing import settled_density
@@ -853,7 +854,9 @@ def evaluate_scenario(model: RomModel, heldout: Path, progress=None, rom_options
     replicas, ``tracking_error_spread`` the mean, min, max, standard deviation and
     count of the tracking error; the noise floor is the same error between every pair
     of replicas. The feed prediction and the velocity field are scored against the
-    reference ``dem``.
+    reference ``dem``. ``hanging_mass_share`` is the share of the bulk hanging over
+    emptied cells at the scene's end (``surrogate.rom.hanging``), the ROM's mean over
+    its seeds and the DEM's over the replicas' last mass fields.
 
     The ROM runs once per seed 0 .. ``rom_seeds`` - 1 (its surface layer and
     feeder draw random numbers): its errors are the means over seeds and
@@ -887,13 +890,19 @@ def evaluate_scenario(model: RomModel, heldout: Path, progress=None, rom_options
         if name == "rom":
             summary["rom_out_of_training_range"] = sorted(storage.out_of_range.values())
             rom_storage = storage
+            hanging = [_hanging_at_end(storage, model, t1)]
             for seed in range(1, rom_seeds):
                 _say(progress, f"held-out run {heldout.name}: rom, seed {seed}")
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # seed 0's run has warned
-                    other, _, _ = run_storage(name, heldout, model, seed=seed,
-                                              options=rom_options)
+                    other, _, other_storage = run_storage(name, heldout, model, seed=seed,
+                                                          options=rom_options)
                 scores.append(ensemble_score(other, references, t0, t1))
+                hanging.append(_hanging_at_end(other_storage, model, t1))
+            summary["hanging_mass_share"] = {
+                "rom": float(np.mean(hanging)),
+                "dem": float(np.mean([hanging_share(run["field_mass"][-1], model.grid,
+                                                    model.container) for run in replicas]))}
             summary["rom_seeds"] = rom_seeds
             summary["rom_tracking_error_by_seed"] = [s["tracking_error"] for s in scores]
         for key in ("tracking_error", "grade_error", "hardness_error"):
@@ -929,6 +938,13 @@ def evaluate_scenario(model: RomModel, heldout: Path, progress=None, rom_options
     summary["dem_particles"] = int(dem["particles"])
     summary["dem_dt_s"] = float(dem["dt"])
     return summary
+
+
+def _hanging_at_end(storage, model: RomModel, t: float) -> float:
+    """Share of the ROM's bulk hanging over emptied cells at time ``t`` [s]
+    (``surrogate.rom.hanging``), on the model's grid and container."""
+    bulk = storage.bulk_snapshot(t)
+    return hanging_share_of(bulk["position"], bulk["mass"], model.grid, model.container)
 
 
 def _targets(scenario: dict) -> dict:

@@ -8,7 +8,8 @@ particles of the surface layer (resolved DEM) are black, the others are
 propagated by the reduced-order model and coloured by residence time.
 
 The run (``run_states``): the shipped paper-scale ROM (``RomStorage``'s
-default model) with its DEM surface layer. Lots of ``doe.LOT_MASS`` (15 t)
+default model, or the file the environment variable ``MINETWIN_ROM_MODEL`` names,
+as for the feed prediction) with its DEM surface layer. Lots of ``doe.LOT_MASS`` (15 t)
 alternate hardness 1 and 2 (``doe.LotFeed``, grade uniform in 0.2-0.8), split
 into the training DEM's pseudo-particles (``emitter.split_lot``: 12-160 kg,
 0.2-0.48 m).
@@ -28,8 +29,11 @@ Figures: ``pile_states.png`` (both states by hardness) and
 ``pile_residence_time.png`` (both states by residence time [s] = now - the
 time the particle entered the pile). ``summary.json`` gives each state's
 held mass, particle count, surface height over the outlet and the inlet,
-the surface particles, the mass balance and the ROM's inputs outside its
-training ranges.
+the surface particles, the share of the bulk hanging over emptied cells
+(``surrogate.rom.hanging``), the mass balance and the ROM's inputs outside its
+training ranges. Checks (exit code 1 when one fails): mass balance, ids, a crater
+over the outlet, and no state hanging more than ``hanging.HANGING_LIMIT`` of its
+bulk over emptied cells.
 """
 
 from __future__ import annotations
@@ -112,13 +116,24 @@ def _surface_height(state: dict, x: float, half_width: float = 2.0) -> float:
     return float(state["y"][near].max()) if near.any() else 0.0
 
 
+def _hanging_share(state: dict, storage) -> float:
+    """Share [-] of the state's bulk (the surface layer left out) hanging over emptied
+    cells of the ROM's grid (``surrogate.rom.hanging``)."""
+    from surrogate.rom.hanging import hanging_share_of
+
+    bulk = ~state["falling"]
+    return hanging_share_of(np.column_stack((state["x"][bulk], state["y"][bulk])),
+                            state["mass"][bulk], storage.model.grid, storage.container)
+
+
 def run_states(*, quick: bool = False, seed: int = 0, fill: float = FILL_KG,
-               progress=None) -> tuple[list[dict], dict]:
-    """The pointy and the depleted state (dicts of ``_state``) and the run's figures."""
+               progress=None, model=None) -> tuple[list[dict], dict]:
+    """The pointy and the depleted state (dicts of ``_state``) and the run's figures;
+    ``model``: a ROM model file (default: ``RomStorage``'s default model)."""
     from surrogate.dem import DemConfig
     from surrogate.rom.storage import RomStorage
 
-    storage = RomStorage(rng=np.random.default_rng(seed))
+    storage = RomStorage(model, rng=np.random.default_rng(seed))
     store = ParticleStore(capacity=32_768)
     store.add_attribute("tracking_id", np.uint64, 0)
     storage.bind(store, OWNER)
@@ -155,6 +170,7 @@ def run_states(*, quick: bool = False, seed: int = 0, fill: float = FILL_KG,
            "states": {s["name"]: {"time_s": s["time"], "held_kg": float(s["mass"].sum()),
                                   "particles": int(s["x"].size),
                                   "falling_particles": int(s["falling"].sum()),
+                                  "hanging_mass_share": _hanging_share(s, storage),
                                   "surface_over_outlet_m": _surface_height(s, c.outlet_x),
                                   "surface_over_inlet_m": _surface_height(s, c.inlet_x)}
                       for s in states}}
@@ -213,21 +229,32 @@ def plot(states: list[dict], out: Path, run: str) -> list[Path]:
 
 def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int = 0):
     """Run, plot, write ``summary.json``; (summary, failed checks)."""
+    import os
+
+    from cosim.analyses.feed_prediction import ROM_MODEL_ENV
     from cosim.analyses.profile_run import output_folder
+    from cosim.errors import ValidationError
     from cosim.plotstyle import run_label
     from cosim.progress import Progress
+    from surrogate.rom.hanging import HANGING_LIMIT
 
+    model = os.environ.get(ROM_MODEL_ENV) or None
+    if model is not None and not Path(model).is_file():
+        raise ValidationError(ROM_MODEL_ENV, "the path of a ROM model file (minetwin rom train)",
+                              f"got {model!r}, which is no file")
     out = output_folder(out_dir)
     seconds = (QUICK_POINTY_S + QUICK_DEPLETE_S) if quick else (POINTY_S + DEPLETE_S)
     bar = Progress("pile states: ROM run", seconds) if progress else None
     try:
-        states, summary = run_states(quick=quick, seed=seed,
+        states, summary = run_states(quick=quick, seed=seed, model=model,
                                      progress=None if bar is None else bar.update)
     finally:
         if bar is not None:
             bar.close()
     summary["quick"] = quick
-    label = run_label(scenario="pile_states", seed=seed, model="rom (shipped paper-scale)")
+    summary["model"] = str(model) if model else "shipped paper-scale"
+    label = run_label(scenario="pile_states", seed=seed,
+                      model=f"rom ({Path(model).name if model else 'shipped paper-scale'})")
     summary["figures"] = [p.name for p in plot(states, out, label)]
     pointy, depleted = summary["states"]["pointy"], summary["states"]["depleted"]
     failed = []
@@ -237,6 +264,10 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
         failed.append("the held ids differ from the particles in the store")
     if not depleted["surface_over_outlet_m"] < pointy["surface_over_outlet_m"]:
         failed.append("no crater: the surface over the outlet did not sink while depleting")
+    for name, state in summary["states"].items():
+        if state["hanging_mass_share"] > HANGING_LIMIT:
+            failed.append(f"{name} state: {state['hanging_mass_share']:.4f} of the bulk hangs over "
+                          f"emptied cells (at most {HANGING_LIMIT} rests on its base)")
     summary["checks_failed"] = failed
     jsonio.write(out / "summary.json", summary, indent=2, sort_keys=True)
     return summary, failed
