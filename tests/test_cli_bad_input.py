@@ -16,6 +16,7 @@ from minetwin.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = str(ROOT / "examples" / "step_response.toml")
 DESIGN = str(ROOT / "surrogate" / "rom" / "data" / "paper_design")
+VALIDATION = str(ROOT / "surrogate" / "rom" / "data" / "paper_validation")
 
 
 @pytest.fixture(scope="module")
@@ -127,6 +128,10 @@ CASES = [
      "dispersivity: must be finite and >= 0 m"),
     ("rom train --data {design} --out {out}/m.npz --validation {bad}/folder",
      "validation: must be the data folder of an exported held-out design"),
+    ("rom train --data {bad}/folder --out {out}/m.npz --hanging-limit 0.01",
+     "--hanging-limit: must be only with --validation"),
+    ("rom train --data {design} --out {out}/m.npz --validation {validation} "
+     "--hanging-limit 1.5", "hanging_limit: must be finite and >= 0 and <= 1"),
     ("rom evaluate --model {bad}/text.md --data {bad}/folder", "model: must be a MineTwin ROM"),
     ("rom evaluate --quick --workers 0 --out {out}", "--workers: must be >= 1"),
     ("fmus validate {bad}/missing.fmu", "no such file"),
@@ -143,7 +148,7 @@ CASES = [
 def test_bad_input_exits_2_naming_the_argument_without_a_traceback(line, expected, bad,
                                                                    tmp_path, capsys):
     argv = line.format(bad=bad, out=tmp_path / "out", scenario=SCENARIO,
-                       design=DESIGN).split()
+                       design=DESIGN, validation=VALIDATION).split()
     env_before = dict(os.environ)
     try:
         code = main(argv)

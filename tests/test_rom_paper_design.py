@@ -461,6 +461,7 @@ def test_train_chooses_by_tracking_on_validation_scenes(reduced_run, heldout_run
     storage options as its defaults. The scores are compared with each other,
     never with a DEM trajectory's value."""
     from surrogate.rom import evaluate, validation
+    from surrogate.rom.hanging import HANGING_LIMIT
     from surrogate.rom.storage import RomStorage
 
     pd.export(reduced_run[0], reduced_run[1], tmp_path / "train_data")
@@ -474,10 +475,18 @@ def test_train_chooses_by_tracking_on_validation_scenes(reduced_run, heldout_run
     record = model.validation
     assert record["selected_by"] == "tracking on validation scenes"
     assert set(record["candidates"]) == {"2/2/0.1", "2/2/1", "2/2/10", "2/2/100"}
-    assert record["validation_tracking_error"] == min(record["candidates"].values())
     assert record["candidates"][f"2/2/{model.ridge:g}"] == record["validation_tracking_error"]
     assert list(record["validation_scenes"]) == ["small_heldout_q1000"]
     assert record["validation_scenes"]["small_heldout_q1000"]["n"] == pd.HELDOUT_REPLICAS
+    # the choice is the best tracker among the candidates whose bulk rests on its base
+    hanging = record["candidates_hanging_mass_share"]
+    assert set(hanging) == set(record["candidates"])
+    assert all(0.0 <= share <= 1.0 for share in hanging.values())
+    resting = [key for key, share in hanging.items() if share <= record["hanging_limit"]]
+    assert record["hanging_limit"] == HANGING_LIMIT
+    assert record["hanging_limit_met"] is bool(resting)
+    assert record["validation_tracking_error"] == min(
+        record["candidates"][key] for key in (resting or record["candidates"]))
     loaded = evaluate.RomModel.load(out)
     assert loaded.storage_settings == model.storage_settings == options
     assert loaded.provenance["options"]["validation"] == str(tmp_path / "validation")
@@ -488,6 +497,17 @@ def test_train_chooses_by_tracking_on_validation_scenes(reduced_run, heldout_run
     assert alone.storage_settings == options  # the scores run it under them
     again = validation.tracking_scores({"chosen": alone}, tmp_path / "validation", 1)
     assert again["chosen"]["tracking_error"] == record["validation_tracking_error"]
+    assert again["chosen"]["hanging_mass_share"] == hanging[f"2/2/{model.ridge:g}"]
+    # at limit 0 only a candidate hanging nothing qualifies; with none, tracking alone
+    strict = evaluate.train(tmp_path / "train_data", None, n_mass_modes=2, n_velocity_modes=2,
+                            validation=[tmp_path / "validation"], storage_options=options,
+                            rom_seeds=1, hanging_limit=0.0)
+    flawless = [key for key, share in hanging.items() if share <= 0.0]
+    assert strict.validation["hanging_limit_met"] is bool(flawless)
+    assert strict.validation["validation_tracking_error"] == min(
+        record["candidates"][key] for key in (flawless or record["candidates"]))
+    with pytest.raises(ValidationError, match="distinct names"):
+        validation.tracking_scores({"chosen": alone}, [tmp_path / "validation"] * 2, 1)
 
 
 def _choices_agree_with_every_model_run(summary: dict, scored: dict) -> None:

@@ -62,3 +62,15 @@ def test_train_keeps_the_storage_options_and_a_given_walk_and_refuses_bad_ones(t
                            storage_options=options)
     with pytest.raises(ValidationError, match="validation"):
         evaluate.train(data, None, validation=data)
+
+
+def test_the_regenerating_command_repeats_a_flag_given_several_times():
+    """Several validation folders come back as one ``--validation`` each, in order;
+    floats as short as they read back exactly."""
+    from surrogate.rom.provenance import regenerate_command
+
+    command = regenerate_command("d", "m.npz", {"validation": ["a", "b"], "rom_seeds": 2,
+                                                "packing_density": 564.1891533925966,
+                                                "ridge": None, "hanging_limit": 0.01})
+    assert command == ("minetwin rom train --data d --out m.npz --validation a --validation b "
+                       "--rom-seeds 2 --packing-density 564.1891533925966 --hanging-limit 0.01")

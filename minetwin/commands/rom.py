@@ -28,11 +28,17 @@ def register(subparsers) -> None:
                        help="the bulk's random walk [m], kept in the model file (default: "
                             "the DEM's measured dispersivity less what the ROM's own scheme "
                             "shows under the storage options; 0: no walk)")
-    train.add_argument("--validation", default=None, metavar="DIR",
+    train.add_argument("--validation", action="append", default=None, metavar="DIR",
                        help="choose the options left open by the tracking error on the "
                             "scenes of this exported held-out design (e.g. "
-                            "surrogate/rom/data/paper_validation; surrogate.rom.validation) "
-                            "instead of the leave-one-run-out velocity error")
+                            "surrogate/rom/data/paper_validation; repeat for several; "
+                            "surrogate.rom.validation) instead of the leave-one-run-out "
+                            "velocity error, among the candidates whose bulk rests on its "
+                            "base (--hanging-limit)")
+    train.add_argument("--hanging-limit", type=float, default=None, metavar="SHARE",
+                       help="with --validation: the largest share [-] of the bulk a candidate "
+                            "may leave hanging over emptied cells at a scene's end (default "
+                            "0.005, surrogate.rom.hanging; 0-1)")
     train.add_argument("--packing", choices=("avalanche", "column", "none"), default=None,
                        help="the storage's packing the model is chosen under and keeps as "
                             "its default (RomStorage's packing; default: avalanche)")
@@ -185,18 +191,26 @@ def _progress(message: str) -> None:
 def run_train(args) -> int:
     from cosim.errors import ValidationError
     from surrogate.rom.evaluate import VALIDATION_ROM_SEEDS, train
+    from surrogate.rom.hanging import HANGING_LIMIT
 
     if args.rom_seeds is not None and args.validation is None:
         raise ValidationError("--rom-seeds", "only with --validation")
+    if args.hanging_limit is not None and args.validation is None:
+        raise ValidationError("--hanging-limit", "only with --validation")
+    validation = args.validation
+    if validation is not None and len(validation) == 1:
+        validation = validation[0]
     model = train(args.data, args.out, args.mass_modes, args.velocity_modes, args.ridge,
                   progress=_progress, target=args.target, flux_floor=args.flux_floor,
                   fill_law=args.fill_law, rest_fraction=args.rest_fraction,
-                  registration=args.registration, validation=args.validation,
+                  registration=args.registration, validation=validation,
                   storage_options={"packing": args.packing,
                                    "packing_density": args.packing_density,
                                    "landing_spread": args.landing_spread},
                   rom_seeds=VALIDATION_ROM_SEEDS if args.rom_seeds is None else args.rom_seeds,
-                  dispersivity=args.dispersivity)
+                  dispersivity=args.dispersivity,
+                  hanging_limit=(HANGING_LIMIT if args.hanging_limit is None
+                                 else args.hanging_limit))
     print(f"trained on {model.n_samples} samples, grid {model.grid.nx}x{model.grid.ny}, "
           f"modes {model.n_mass_modes}/{model.n_velocity_modes}, ridge {model.ridge:g}, "
           f"resting share {model.rest_fraction:g}; wrote {args.out}")

@@ -45,7 +45,7 @@ from cosim.storage import make_storage
 from surrogate.rom import doe, metrics, rest
 from surrogate.rom.dispersion import dispersivity
 from surrogate.rom.grid import Grid, mean_field
-from surrogate.rom.hanging import hanging_share, hanging_share_of
+from surrogate.rom.hanging import HANGING_LIMIT, hanging_share, hanging_share_of
 from surrogate.rom.model import (FLUX_FLOOR, FLUX_FLOORS, RomModel, flux_samples, pod_basis,
                                   pod_residual)
 from surrogate.rom.packing import settled_density
@@ -593,7 +593,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
           rest_fraction: float | None = None, registration: str | None = None,
           validation=None, storage_options: dict | None = None,
           rom_seeds: int = VALIDATION_ROM_SEEDS,
-          dispersivity: float | None = None) -> RomModel:
+          dispersivity: float | None = None,
+          hanging_limit: float = HANGING_LIMIT) -> RomModel:
     """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it).
 
     ``target`` (default "velocity"): the field the regression fits (``RomModel``);
@@ -615,10 +616,14 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     smallest leave-one-run-out velocity error (recorded in the model's
     ``validation``), so the held-out scenario plays no part in the choice.
     With ``validation`` (the data folder of an exported held-out design, such
-    as ``paper_validation``; velocity fits only) they are chosen by the smallest
-    tracking error on its scenes instead (``surrogate.rom.validation``, ROM seeds
-    0 .. ``rom_seeds`` - 1, default ``VALIDATION_ROM_SEEDS``), each candidate
-    fitted on the whole design and completed as the model is shipped.
+    as ``paper_validation``, or a list of them; velocity fits only) they are
+    chosen by the smallest tracking error on its scenes instead
+    (``surrogate.rom.validation``, ROM seeds 0 .. ``rom_seeds`` - 1, default
+    ``VALIDATION_ROM_SEEDS``), each candidate fitted on the whole design and
+    completed as the model is shipped, among the candidates whose bulk hangs over
+    emptied cells by at most ``hanging_limit`` [-] at every scene's end (default
+    ``surrogate.rom.hanging.HANGING_LIMIT``; should none, among all, and the
+    record says so: ``hanging_limit_met``).
     The training range of the mass distribution's residual is the larger of
     the training states' own and ``leave_one_run_out_residual`` (both in
     ``validation``).
@@ -643,11 +648,15 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         if flux:
             raise ValidationError("validation", "a velocity fit (target 'velocity')",
                                   f"got target {target!r}")
-        if not heldout_layout.is_heldout_data(validation):
-            raise ValidationError("validation", "the data folder of an exported held-out "
-                                  "design (`minetwin rom design --design paper_validation "
-                                  "--export`)", f"{validation} is not one")
+        from surrogate.rom.validation import folders
+
+        for folder in folders(validation):
+            if not heldout_layout.is_heldout_data(folder):
+                raise ValidationError("validation", "the data folder of an exported held-out "
+                                      "design (`minetwin rom design --design paper_validation "
+                                      "--export`)", f"{folder} is not one")
         rom_seeds = check_rom_seeds(rom_seeds)
+        hanging_limit = float(check_finite_range("hanging_limit", hanging_limit, 0.0, 1.0))
     # RomModel checks the registration's value when the first candidate is fitted
     registered = (registration, None if registration is None
                   else settled_density(directory)["density"])
@@ -663,7 +672,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     everything = np.ones(samples["run"].size, dtype=bool)
     validation_record, model = {}, None
     if validation is not None and len(candidates) > 1:
-        from surrogate.rom.validation import tracking_scores
+        from surrogate.rom.validation import folders, tracking_scores
 
         bases = fitted_bases(grid, samples, everything, registered)
         fitted, residuals = {}, {}
@@ -676,19 +685,29 @@ def train(directory, out=None, n_mass_modes: int | None = None,
                 directory, samples, meta.get("dem_config"), {}, rest_fraction,
                 storage_options, residuals=residuals, walk=dispersivity)
         scores = tracking_scores(fitted, validation, rom_seeds, progress)
-        best = min(scores, key=lambda key: scores[key]["tracking_error"])
+        resting = [key for key, entry in scores.items()
+                   if entry["hanging_mass_share"] <= hanging_limit]
+        best = min(resting or scores, key=lambda key: scores[key]["tracking_error"])
         model = fitted[best]
+        names = [Path(folder).name for folder in folders(validation)]
         validation_record = {
             "selected_by": "tracking on validation scenes",
-            "validation_data": Path(validation).name, "rom_seeds": rom_seeds,
+            "validation_data": names[0] if len(names) == 1 else names, "rom_seeds": rom_seeds,
             "storage_settings": storage_options,
             "validation_tracking_error": scores[best]["tracking_error"],
             "validation_scenes": scores[best]["scenes"],
             "candidates": {"/".join(f"{x:g}" for x in key): entry["tracking_error"]
-                           for key, entry in scores.items()}}
+                           for key, entry in scores.items()},
+            "hanging_limit": hanging_limit, "hanging_limit_met": bool(resting),
+            "candidates_hanging_mass_share": {
+                "/".join(f"{x:g}" for x in key): entry["hanging_mass_share"]
+                for key, entry in scores.items()}}
+        if not resting:
+            _say(progress, f"model selection: every candidate leaves more than {hanging_limit:g} "
+                           "of its bulk hanging over emptied cells; chosen by tracking alone")
         _say(progress, f"model selection: modes {best[0]}/{best[1]}, ridge {best[2]:g}, "
                        f"tracking error {scores[best]['tracking_error']:.3f} on the "
-                       "validation scenes")
+                       f"validation scenes, {len(resting)} of {len(scores)} candidates resting")
     elif len(candidates) * len(floors) > 1 and np.unique(samples["run"]).size > 1:
         scores = leave_one_run_out_errors(grid, samples, candidates, target, container,
                                           floors if flux else None, fill_law, registered)
@@ -723,7 +742,13 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         if registration is not None:
             options.update(registration=registration)
         if validation is not None:
-            options.update(validation=str(validation), rom_seeds=rom_seeds)
+            from surrogate.rom.validation import folders
+
+            given = [str(folder) for folder in folders(validation)]
+            options.update(validation=given[0] if len(given) == 1 else given,
+                           rom_seeds=rom_seeds)
+            if hanging_limit != HANGING_LIMIT:
+                options.update(hanging_limit=hanging_limit)
         options.update(storage_options)
         model.provenance = training_provenance(directory, out, options)
         model.save(out)

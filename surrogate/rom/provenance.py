@@ -56,8 +56,9 @@ def _flag_value(value) -> str:
 
 def regenerate_command(data, out, options: dict) -> str:
     """``minetwin rom train`` with ``data``, ``out`` and the options that were given."""
-    flags = "".join(f" --{name.replace('_', '-')} {_flag_value(value)}"
-                    for name, value in options.items() if value is not None)
+    flags = "".join(f" --{name.replace('_', '-')} {_flag_value(one)}"
+                    for name, value in options.items() if value is not None
+                    for one in (value if isinstance(value, list) else [value]))
     return f"minetwin rom train --data {data} --out {out}{flags}"
 
 
@@ -68,6 +69,9 @@ def training_provenance(data, out, options: dict) -> dict:
                   "code_version": batch.code_version(), "numpy": np.__version__,
                   "options": dict(options),
                   "regenerate": regenerate_command(data, out, options)}
-    if options.get("validation") is not None:  # the scenes the options were chosen on
-        provenance["validation_sha256"] = data_digest(options["validation"])
+    chosen_on = options.get("validation")
+    if chosen_on is not None:  # the scenes the options were chosen on
+        provenance["validation_sha256"] = (
+            [data_digest(folder) for folder in chosen_on] if isinstance(chosen_on, list)
+            else data_digest(chosen_on))
     return provenance

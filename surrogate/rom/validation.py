@@ -15,51 +15,78 @@ is what the ROM is for.
 
 A validation data folder is an exported held-out design
 (``paper_design.Design.keep_start_states``; ``minetwin rom design --design
-paper_validation --export``). Each candidate runs through every scene laid out
-from it (``heldout_layout``) once per ROM seed 0 .. ``rom_seeds`` - 1 under the
-storage settings it keeps (``RomModel.storage_settings``), and is scored
-against every stable DEM replica of the scene (``evaluate.ensemble_score``);
-its score is the mean over scenes of the mean over (seed, replica) pairs.
+paper_validation --export``); several folders are scored together. Each
+candidate runs through every scene laid out from them (``heldout_layout``) once
+per ROM seed 0 .. ``rom_seeds`` - 1 under the storage settings it keeps
+(``RomModel.storage_settings``), and is scored against every stable DEM replica
+of the scene (``evaluate.ensemble_score``); its score is the mean over scenes of
+the mean over (seed, replica) pairs. Beside it, the share of its bulk hanging over
+emptied cells at each scene's end (``surrogate.rom.hanging``; mean over seeds),
+which the pile's shape, not its outflow, shows.
 """
 
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 
+from cosim.errors import ValidationError
 from surrogate.rom import evaluate, heldout_layout
+from surrogate.rom.hanging import hanging_share_of
+
+
+def folders(data) -> list:
+    """``data`` (one folder or several) as a list of folders."""
+    return [data] if isinstance(data, (str, Path)) else list(data)
 
 
 def tracking_scores(models: dict, data, rom_seeds: int = 2, progress=None) -> dict:
-    """Each model's tracking error on the validation scenes of ``data``.
+    """Each model's tracking error on the validation scenes of ``data`` (one folder or
+    several).
 
     ``models``: ``{key: RomModel}``, each run by ``RomStorage`` as it ships (its
     ``storage_settings``); ``rom_seeds``: 1-100 (default 2).
     Returns ``{key: {"tracking_error": mean over scenes, "scenes": {scene:
-    spread over (seed, replica) pairs}}}`` (``evaluate.spread``).
+    spread over (seed, replica) pairs}, "hanging_mass_share": the largest over
+    scenes, "hanging_by_scene": {scene: mean over seeds}}}`` (``evaluate.spread``).
     """
     rom_seeds = evaluate.check_rom_seeds(rom_seeds)
-    scores = {key: {"scenes": {}} for key in models}
-    with heldout_layout.scenes_laid_out(data) as (folder, names):
-        for name in names:
-            scene = folder / name
-            replicas = evaluate.stable_replicas(scene)
-            references = [evaluate.outflow_of(run) for run in replicas]
-            t0 = float(replicas[0]["t0"])
-            t1 = t0 + evaluate.scenario_duration(scene)
-            for number, (key, model) in enumerate(models.items(), start=1):
-                if progress is not None:
-                    progress(f"validation scene {name}: candidate {number} of {len(models)}")
-                errors = []
-                for seed in range(rom_seeds):
-                    with warnings.catch_warnings():
-                        # a candidate outside its training ranges is scored as it runs
-                        warnings.simplefilter("ignore")
-                        outflow, _, _ = evaluate.run_storage("rom", scene, model, seed=seed)
-                    errors += evaluate.ensemble_score(outflow, references, t0,
-                                                      t1)["tracking_errors"]
-                scores[key]["scenes"][name] = evaluate.spread(errors)
+    scores = {key: {"scenes": {}, "hanging_by_scene": {}} for key in models}
+    seen = set()
+    for folder_of_scenes in folders(data):
+        with heldout_layout.scenes_laid_out(folder_of_scenes) as (folder, names):
+            if seen & set(names):
+                raise ValidationError("validation", "folders whose scenes have distinct names",
+                                      f"{sorted(seen & set(names))} twice")
+            seen |= set(names)
+            for name in names:
+                _score_scene(models, scores, folder / name, rom_seeds, progress)
     for entry in scores.values():
         entry["tracking_error"] = float(np.mean([s["mean"] for s in entry["scenes"].values()]))
+        entry["hanging_mass_share"] = max(entry["hanging_by_scene"].values())
     return scores
+
+
+def _score_scene(models: dict, scores: dict, scene: Path, rom_seeds: int, progress) -> None:
+    """Every model on one laid-out validation scene, into ``scores``."""
+    replicas = evaluate.stable_replicas(scene)
+    references = [evaluate.outflow_of(run) for run in replicas]
+    t0 = float(replicas[0]["t0"])
+    t1 = t0 + evaluate.scenario_duration(scene)
+    for number, (key, model) in enumerate(models.items(), start=1):
+        if progress is not None:
+            progress(f"validation scene {scene.name}: candidate {number} of {len(models)}")
+        errors, hanging = [], []
+        for seed in range(rom_seeds):
+            with warnings.catch_warnings():
+                # a candidate outside its training ranges is scored as it runs
+                warnings.simplefilter("ignore")
+                outflow, _, storage = evaluate.run_storage("rom", scene, model, seed=seed)
+            errors += evaluate.ensemble_score(outflow, references, t0, t1)["tracking_errors"]
+            bulk = storage.bulk_snapshot(t1)
+            hanging.append(hanging_share_of(bulk["position"], bulk["mass"], model.grid,
+                                            model.container))
+        scores[key]["scenes"][scene.name] = evaluate.spread(errors)
+        scores[key]["hanging_by_scene"][scene.name] = float(np.mean(hanging))
