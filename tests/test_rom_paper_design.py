@@ -628,3 +628,25 @@ def test_only_refuses_a_run_the_design_does_not_have_by_name(tmp_path):
     assert "--only" in done.stderr and "small_drain_out1500" in done.stderr
     assert "no_such_run" in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "w").exists()  # nothing run
+
+
+@pytest.mark.parametrize("name", ["paper_validation", "paper_validation_drain"])
+def test_the_committed_validation_scenes_are_their_designs_and_rest_on_their_base(name):
+    """The committed validation folders hold every run of their design (by content
+    key), laid out as ``rom train --validation`` reads them, and the DEM's own piles
+    hang no more than ``hanging.HANGING_LIMIT`` over emptied cells in any sampled
+    field (the limit is set above the DEM's largest share)."""
+    from surrogate.rom import heldout_layout
+    from surrogate.rom.hanging import HANGING_LIMIT, hanging_share
+
+    folder = pd.DATA_DIR.parent / name
+    design = pd.DESIGNS[name]()
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert {run["key"] for run in manifest["runs"]} == {pd.run_key(design, run)
+                                                        for run in design.runs}
+    assert heldout_layout.is_heldout_data(folder)
+    grid, container = doe.grid_and_container(folder)
+    for run in design.runs:
+        with np.load(folder / "train" / f"{run.name}.npz") as stored:
+            shares = [hanging_share(field, grid, container) for field in stored["mass"]]
+        assert max(shares) <= HANGING_LIMIT

@@ -420,6 +420,30 @@ def paper_validation_design() -> Design:
                   checkpoint_interval=20.0, keep_start_states=True)
 
 
+VALIDATION_DRAIN_SCENES = (("validation_out2000_in300", 2000.0, 300.0),)
+"""The draining validation scene ``(name, discharge [kg/s], inflow [kg/s])``: the
+rates of the depleted phase of ``surrogate.rom.pile_states``, where a ROM that
+leaves its bulk hanging over emptied cells shows it (``surrogate.rom.hanging``)."""
+
+VALIDATION_DRAIN_DURATION = 210.0
+"""Simulated seconds [s] of the draining validation scene: it takes the 1.6 kt
+pile down to about 1.23 kt, just above the design's lightest pile (1.2 kt)."""
+
+
+def paper_validation_drain_design() -> Design:
+    """A second validation scene, draining: ``paper_validation_design``'s pile (the
+    same laid-out 19,000 disks, so the same settled start) drained at 2 t/s with
+    0.3 t/s of inflow for ``VALIDATION_DRAIN_DURATION`` s, as
+    ``VALIDATION_REPLICAS`` DEM replicas. Where the first validation scene holds
+    its mass, this one tests what a model does to a pile it empties."""
+    cfg = paper_config()
+    return Design("paper_validation_drain", cfg, paper_grid(cfg), (VALIDATION_PILE,),
+                  _heldout_runs(f"pile:{VALIDATION_PILE.name}", VALIDATION_DRAIN_SCENES,
+                                VALIDATION_DRAIN_DURATION, first_seed=310,
+                                replicas=VALIDATION_REPLICAS),
+                  checkpoint_interval=20.0, keep_start_states=True)
+
+
 def reduced_heldout_design() -> Design:
     """``paper_heldout_design`` on a few hundred disks and seconds (for tests)."""
     cfg = paper_config()
@@ -434,6 +458,7 @@ DESIGNS = {"paper": paper_design, "reduced": reduced_design,
            "paper_heldout": paper_heldout_design, "reduced_heldout": reduced_heldout_design,
            "paper_heldout_nonsmooth": paper_heldout_nonsmooth_design,
            "paper_validation": paper_validation_design,
+           "paper_validation_drain": paper_validation_drain_design,
            "paper_rock": paper_rock_design, "paper_rock_nonsmooth": paper_rock_nonsmooth_design,
            "paper_rock_inflow": paper_rock_inflow_design,
            "paper_rock_inflow_nonsmooth": paper_rock_inflow_nonsmooth_design}
