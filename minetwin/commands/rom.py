@@ -120,7 +120,8 @@ def register(subparsers) -> None:
     design.add_argument("--design", default="paper",
                         help="paper (default), reduced, paper_heldout (the held-out "
                              "scenes), paper_heldout_nonsmooth (those scenes by the "
-                             "nonsmooth DEM, one run each), paper_validation (a scene "
+                             "nonsmooth DEM, one run each), paper_validation and "
+                             "paper_validation_drain (scenes that hold and drain a pile, "
                              "for choosing among fitted models, rom train "
                              "--validation), paper_rock and "
                              "paper_rock_inflow (a held-out pile at rock stiffness, "

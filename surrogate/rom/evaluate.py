@@ -629,6 +629,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     ``validation``).
     """
     from surrogate.rom.container import Container
+    from surrogate.rom.validation import folders, tracking_scores
 
     storage_options = check_storage_options(storage_options)
     if rest_fraction is not None:
@@ -648,8 +649,6 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         if flux:
             raise ValidationError("validation", "a velocity fit (target 'velocity')",
                                   f"got target {target!r}")
-        from surrogate.rom.validation import folders
-
         for folder in folders(validation):
             if not heldout_layout.is_heldout_data(folder):
                 raise ValidationError("validation", "the data folder of an exported held-out "
@@ -672,8 +671,6 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     everything = np.ones(samples["run"].size, dtype=bool)
     validation_record, model = {}, None
     if validation is not None and len(candidates) > 1:
-        from surrogate.rom.validation import folders, tracking_scores
-
         bases = fitted_bases(grid, samples, everything, registered)
         fitted, residuals = {}, {}
         for number, candidate in enumerate(candidates, start=1):
@@ -742,8 +739,6 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         if registration is not None:
             options.update(registration=registration)
         if validation is not None:
-            from surrogate.rom.validation import folders
-
             given = [str(folder) for folder in folders(validation)]
             options.update(validation=given[0] if len(given) == 1 else given,
                            rom_seeds=rom_seeds)

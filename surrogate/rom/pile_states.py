@@ -277,7 +277,7 @@ def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int 
     if summary["discharge_delivered_share"] < DELIVERED_SHARE:
         failed.append(f"the feeder delivered {summary['discharge_delivered_share']:.3f} of the "
                       f"{summary['discharge_commanded_kg'] / 1e3:,.0f} t commanded (at least "
-                      f"{DELIVERED_SHARE}: the pile holds far more than it was asked for)")
+                      f"{DELIVERED_SHARE}; the pile held enough for all of it)")
     for name, state in summary["states"].items():
         if state["hanging_mass_share"] > HANGING_LIMIT:
             failed.append(f"{name} state: {state['hanging_mass_share']:.4f} of the bulk hangs over "
