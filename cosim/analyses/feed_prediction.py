@@ -204,20 +204,27 @@ def storage_models() -> tuple[list[tuple[str, dict]], dict]:
     FIFO, perfect mixing and, where the "rom" storage model is registered, the ROM (the
     paper's funnel-zone prediction) with its default model or the file ``ROM_MODEL_ENV``
     names."""
-    import os
-
     from cosim.storage import registered_models
 
     models, skipped = [("fifo", {}), ("mixing", {})], {}
     if "rom" not in registered_models():
         skipped["rom"] = "no storage model named rom is registered"
         return models, skipped
-    path = os.environ.get(ROM_MODEL_ENV)
-    if path and not Path(path).is_file():
-        raise ValidationError(ROM_MODEL_ENV, "the path of a ROM model file (minetwin rom train)",
-                              f"got {path!r}, which is no file")
+    path = rom_model_from_env()
     models.append(("rom", {"model": path} if path else {}))
     return models, skipped
+
+
+def rom_model_from_env() -> str | None:
+    """The ROM file ``ROM_MODEL_ENV`` names (None when unset or empty), refused by name
+    when it is no file."""
+    import os
+
+    path = os.environ.get(ROM_MODEL_ENV) or None
+    if path is not None and not Path(path).is_file():
+        raise ValidationError(ROM_MODEL_ENV, "the path of a ROM model file (minetwin rom train)",
+                              f"got {path!r}, which is no file")
+    return path
 
 
 def analyse_model(run, predicted: pd.DataFrame, min_mass: float) -> tuple[dict, dict]:

@@ -198,13 +198,10 @@ def run_train(args) -> int:
         raise ValidationError("--rom-seeds", "only with --validation")
     if args.hanging_limit is not None and args.validation is None:
         raise ValidationError("--hanging-limit", "only with --validation")
-    validation = args.validation
-    if validation is not None and len(validation) == 1:
-        validation = validation[0]
     model = train(args.data, args.out, args.mass_modes, args.velocity_modes, args.ridge,
                   progress=_progress, target=args.target, flux_floor=args.flux_floor,
                   fill_law=args.fill_law, rest_fraction=args.rest_fraction,
-                  registration=args.registration, validation=validation,
+                  registration=args.registration, validation=args.validation,
                   storage_options={"packing": args.packing,
                                    "packing_density": args.packing_density,
                                    "landing_spread": args.landing_spread},

@@ -649,7 +649,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         if flux:
             raise ValidationError("validation", "a velocity fit (target 'velocity')",
                                   f"got target {target!r}")
-        for folder in folders(validation):
+        validation = folders(validation)
+        for folder in validation:
             if not heldout_layout.is_heldout_data(folder):
                 raise ValidationError("validation", "the data folder of an exported held-out "
                                       "design (`minetwin rom design --design paper_validation "
@@ -686,7 +687,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
                    if entry["hanging_mass_share"] <= hanging_limit]
         best = min(resting or scores, key=lambda key: scores[key]["tracking_error"])
         model = fitted[best]
-        names = [Path(folder).name for folder in folders(validation)]
+        names = [Path(folder).name for folder in validation]
         validation_record = {
             "selected_by": "tracking on validation scenes",
             "validation_data": names[0] if len(names) == 1 else names, "rom_seeds": rom_seeds,
@@ -739,7 +740,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         if registration is not None:
             options.update(registration=registration)
         if validation is not None:
-            given = [str(folder) for folder in folders(validation)]
+            given = [str(folder) for folder in validation]
             options.update(validation=given[0] if len(given) == 1 else given,
                            rom_seeds=rom_seeds)
             if hanging_limit != HANGING_LIMIT:
@@ -910,7 +911,7 @@ def evaluate_scenario(model: RomModel, heldout: Path, progress=None, rom_options
         if name == "rom":
             summary["rom_out_of_training_range"] = sorted(storage.out_of_range.values())
             rom_storage = storage
-            hanging = [_hanging_at_end(storage, model, t1)]
+            hanging = [hanging_at_end(storage, model, t1)]
             for seed in range(1, rom_seeds):
                 _say(progress, f"held-out run {heldout.name}: rom, seed {seed}")
                 with warnings.catch_warnings():
@@ -918,7 +919,7 @@ def evaluate_scenario(model: RomModel, heldout: Path, progress=None, rom_options
                     other, _, other_storage = run_storage(name, heldout, model, seed=seed,
                                                           options=rom_options)
                 scores.append(ensemble_score(other, references, t0, t1))
-                hanging.append(_hanging_at_end(other_storage, model, t1))
+                hanging.append(hanging_at_end(other_storage, model, t1))
             summary["hanging_mass_share"] = {
                 "rom": float(np.mean(hanging)),
                 "dem": float(np.mean([hanging_share(run["field_mass"][-1], model.grid,
@@ -960,7 +961,7 @@ def evaluate_scenario(model: RomModel, heldout: Path, progress=None, rom_options
     return summary
 
 
-def _hanging_at_end(storage, model: RomModel, t: float) -> float:
+def hanging_at_end(storage, model: RomModel, t: float) -> float:
     """Share of the ROM's bulk hanging over emptied cells at time ``t`` [s]
     (``surrogate.rom.hanging``), on the model's grid and container."""
     bulk = storage.bulk_snapshot(t)

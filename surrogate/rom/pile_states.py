@@ -239,19 +239,13 @@ def plot(states: list[dict], out: Path, run: str) -> list[Path]:
 
 def reproduce(out_dir, *, quick: bool = False, progress: bool = True, seed: int = 0):
     """Run, plot, write ``summary.json``; (summary, failed checks)."""
-    import os
-
-    from cosim.analyses.feed_prediction import ROM_MODEL_ENV
+    from cosim.analyses.feed_prediction import rom_model_from_env
     from cosim.analyses.profile_run import output_folder
-    from cosim.errors import ValidationError
     from cosim.plotstyle import run_label
     from cosim.progress import Progress
     from surrogate.rom.hanging import HANGING_LIMIT
 
-    model = os.environ.get(ROM_MODEL_ENV) or None
-    if model is not None and not Path(model).is_file():
-        raise ValidationError(ROM_MODEL_ENV, "the path of a ROM model file (minetwin rom train)",
-                              f"got {model!r}, which is no file")
+    model = rom_model_from_env()
     out = output_folder(out_dir)
     seconds = (QUICK_POINTY_S + QUICK_DEPLETE_S) if quick else (POINTY_S + DEPLETE_S)
     bar = Progress("pile states: ROM run", seconds) if progress else None

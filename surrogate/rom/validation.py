@@ -34,7 +34,6 @@ import numpy as np
 
 from cosim.errors import ValidationError
 from surrogate.rom import evaluate, heldout_layout
-from surrogate.rom.hanging import hanging_share_of
 
 
 def folders(data) -> list:
@@ -85,8 +84,6 @@ def _score_scene(models: dict, scores: dict, scene: Path, rom_seeds: int, progre
                 warnings.simplefilter("ignore")
                 outflow, _, storage = evaluate.run_storage("rom", scene, model, seed=seed)
             errors += evaluate.ensemble_score(outflow, references, t0, t1)["tracking_errors"]
-            bulk = storage.bulk_snapshot(t1)
-            hanging.append(hanging_share_of(bulk["position"], bulk["mass"], model.grid,
-                                            model.container))
+            hanging.append(evaluate.hanging_at_end(storage, model, t1))
         scores[key]["scenes"][scene.name] = evaluate.spread(errors)
         scores[key]["hanging_by_scene"][scene.name] = float(np.mean(hanging))
