@@ -56,6 +56,7 @@ def test_train_keeps_the_storage_options_and_a_given_walk_and_refuses_bad_ones(t
     for options, field in (({"packing": "heap"}, "packing"),
                            ({"packing_density": 0.0}, "packing_density"),
                            ({"landing_spread": -1.0}, "landing_spread"),
+                           ({"void_gap": -1.0}, "void_gap"),
                            ({"transport": "repack"}, "storage_options")):
         with pytest.raises(ValidationError, match=field):
             evaluate.train(data, None, n_mass_modes=2, n_velocity_modes=2, ridge=1.0,

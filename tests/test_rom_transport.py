@@ -126,6 +126,7 @@ def test_bad_transport_options_are_refused_by_name():
     {"transport": "balanced", "packing": "avalanche"},
     {"transport": "projected", "packing": "column"},
     {"transport": "balanced", "packing": "none"},
+    {"transport": "balanced", "packing": "loose", "void_gap": 0.2},
     {"velocity_model": "kinematic", "packing": "avalanche"},
     {"velocity_model": "kinematic", "packing": "none"},
     {"velocity_model": "hybrid", "packing": "avalanche"}])

@@ -8,6 +8,9 @@ import sys
 from cosim import jsonio
 from minetwin import executors
 
+PACKINGS = ("avalanche", "column", "loose", "none")
+"""``surrogate.rom.storage.PACKINGS``, named here so ``--help`` needs no numba import."""
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
@@ -39,9 +42,12 @@ def register(subparsers) -> None:
                        help="with --validation: the largest share [-] of the bulk a candidate "
                             "may leave hanging over emptied cells at a scene's end (default "
                             "0.005, surrogate.rom.hanging; 0-1)")
-    train.add_argument("--packing", choices=("avalanche", "column", "none"), default=None,
+    train.add_argument("--packing", choices=PACKINGS, default=None,
                        help="the storage's packing the model is chosen under and keeps as "
                             "its default (RomStorage's packing; default: avalanche)")
+    train.add_argument("--void-gap", type=float, default=None, metavar="M",
+                       help="with --packing loose: the largest void [m] a particle keeps over "
+                            "the stack below it, kept as the model's default (default 0.3)")
     train.add_argument("--packing-density", type=float, default=None, metavar="KG_M2",
                        help="areal density [kg/m^2] the storage packs at, kept as the "
                             "model's default (default: its container's)")
@@ -78,9 +84,13 @@ def register(subparsers) -> None:
                           default=None,
                           help="the ROM's bulk transport (RomStorage's transport; default: "
                                "the storage's default)")
-    evaluate.add_argument("--packing", choices=("avalanche", "column", "none"), default=None,
+    evaluate.add_argument("--packing", choices=PACKINGS, default=None,
                           help="the ROM's packing after each move (RomStorage's packing; "
                                "default: the model file's, else avalanche)")
+    evaluate.add_argument("--void-gap", type=float, default=None, metavar="M",
+                          help="with the loose packing: the largest void [m] a particle "
+                               "keeps over the stack below it (RomStorage's void_gap; "
+                               "default: the model file's, else 0.3)")
     evaluate.add_argument("--velocity-model", choices=("regressed", "kinematic", "hybrid"),
                           default=None,
                           help="the field the ROM's bulk moves by (RomStorage's "
@@ -204,7 +214,8 @@ def run_train(args) -> int:
                   registration=args.registration, validation=args.validation,
                   storage_options={"packing": args.packing,
                                    "packing_density": args.packing_density,
-                                   "landing_spread": args.landing_spread},
+                                   "landing_spread": args.landing_spread,
+                                   "void_gap": args.void_gap},
                   rom_seeds=VALIDATION_ROM_SEEDS if args.rom_seeds is None else args.rom_seeds,
                   dispersivity=args.dispersivity,
                   hanging_limit=(HANGING_LIMIT if args.hanging_limit is None
@@ -229,7 +240,7 @@ def run_evaluate(args) -> int:
     rom_options = {"surface": args.surface,
                    **{k: getattr(args, k)
                       for k in ("transport", "packing", "velocity_model", "packing_density",
-                                "rest_fraction", "landing_spread")
+                                "rest_fraction", "landing_spread", "void_gap")
                       if getattr(args, k) is not None}}
     RomStorage(**rom_options)  # the storage checks its options, here rather than in a worker
     if args.quick:

@@ -568,7 +568,7 @@ def _completed(model: RomModel, directory, samples: dict, dem_config: dict | Non
 VALIDATION_ROM_SEEDS = 2
 """Default ROM seeds per validation scene of ``train``'s selection by tracking."""
 
-STORAGE_SETTINGS = ("packing", "packing_density", "landing_spread")
+STORAGE_SETTINGS = ("packing", "packing_density", "landing_spread", "void_gap")
 """The ``RomStorage`` options a model chosen by tracking keeps (``RomModel.storage_settings``)."""
 
 

@@ -111,10 +111,15 @@ transport : {"balanced", "projected", "repack"}
     ("projected", ``free_surface="potential"``); "repack": the prediction as
     it is, the packing undoing its compaction (the scheme before the
     projection). On the paper-scale held-out scenes: surrogate/rom/README.md.
-packing : {"avalanche", "column", "none"}, optional
+packing : {"avalanche", "column", "loose", "none"}, optional
     After each move: ``settle`` with angle-of-repose avalanches, ``settle``
-    without them (columns re-stacked in their height order), or nothing
-    (default None: the model's ``storage_settings``, else "avalanche").
+    without them (columns re-stacked in their height order), ``settle_loose``
+    (voids close, the field's spacing stays; avalanches on the real tops) or
+    nothing (default None: the model's ``storage_settings``, else "avalanche").
+void_gap : float, optional
+    With ``packing="loose"``: the largest void [m] a particle may keep over the
+    stack below it (``surface.settle_loose``; default None: the model's
+    ``storage_settings``, else ``VOID_GAP``).
 fill : float
     Least fraction of a full cell's mass that makes a grid cell bulk in the
     projection [-] (default ``surrogate.rom.transport.FILL`` = 0.9).
@@ -195,7 +200,7 @@ from surrogate.rom.kinematic import DIFFUSION_LENGTH, hybrid_field
 from surrogate.rom.kinematic import velocity_field as kinematic_field
 from surrogate.rom.model import OutOfTrainingRange, RomModel
 from surrogate.rom.rest import at_rest, check_share
-from surrogate.rom.surface import (column_width, deposit, feeder_take, settle,
+from surrogate.rom.surface import (column_width, deposit, feeder_take, settle, settle_loose,
                                    surface_heights)
 from surrogate.rom.surface_dem import SurfaceDem
 from surrogate.rom.transport import FILL, advect_faces, centred, project
@@ -233,11 +238,14 @@ SURFACES = ("dem", "rule")
 TRANSPORTS = ("repack", "projected", "balanced")
 """Accepted values of ``RomStorage(transport=...)``."""
 
-PACKINGS = ("avalanche", "column", "none")
+PACKINGS = ("avalanche", "column", "loose", "none")
 """Accepted values of ``RomStorage(packing=...)``."""
 
 DEFAULT_PACKING = "avalanche"
 """The packing of a model whose ``storage_settings`` name none."""
+
+VOID_GAP = 0.3
+"""``void_gap`` [m] of a model whose ``storage_settings`` name none."""
 
 VELOCITY_MODELS = ("regressed", "kinematic", "hybrid")
 """Accepted values of ``RomStorage(velocity_model=...)``."""
@@ -305,10 +313,13 @@ class RomStorage(StorageModel):
                  relax: float = 1.0, velocity_model: str = "regressed",
                  diffusion_length: float = DIFFUSION_LENGTH,
                  packing_density: float | None = None,
-                 rest_fraction: float | None = None, landing_spread: float | None = None):
+                 rest_fraction: float | None = None, landing_spread: float | None = None,
+                 void_gap: float | None = None):
         super().__init__(rng=rng)
-        # packing, packing_density and landing_spread left None take the model's
-        # storage_settings (the ones it was chosen under) at load
+        # packing, packing_density, landing_spread and void_gap left None take the
+        # model's storage_settings (the ones it was chosen under) at load
+        self.void_gap_option = (None if void_gap is None else float(
+            check_finite_range("void_gap", void_gap, 0.0, unit="m")))
         self.landing_spread_option = (None if landing_spread is None else float(
             check_finite_range("landing_spread", landing_spread, 0.0, unit="m")))
         self.rest_option = (None if rest_fraction is None else float(check_finite_range(
@@ -392,6 +403,8 @@ class RomStorage(StorageModel):
         self.landing_spread = (settings.get("landing_spread", 0.0)
                                if self.landing_spread_option is None
                                else self.landing_spread_option)
+        self.void_gap = (settings.get("void_gap", VOID_GAP) if self.void_gap_option is None
+                         else self.void_gap_option)
         self.container = (model.container if self.packing_density is None else
                           replace(model.container, areal_density=self.packing_density))
         self.rest_fraction = (model.rest_fraction if self.rest_option is None
@@ -609,6 +622,8 @@ class RomStorage(StorageModel):
                      c.x_min, c.x_max, c.floor)
         if self.packing == "none":
             return hint
+        if self.packing == "loose":
+            return settle_loose(c, self._width, position, mass, self.void_gap, hint=hint)
         return settle(c, self._width, position, mass, hint=hint,
                       sweeps=20 if self.packing == "avalanche" else 0, relax=self.relax)
 

@@ -136,6 +136,20 @@ def _sort_into_columns(position, x_min, width, columns, hint, column, order, sta
 
 
 @numba.njit(cache=True)
+def _downhill(height, c, max_drop, sweep):
+    """The neighbour column the top of column ``c`` slides onto: the lower one where a
+    drop exceeds ``max_drop`` (ties alternate side with ``sweep``), else -1."""
+    columns = height.size
+    left = height[c] - height[c - 1] if c > 0 else -1.0
+    right = height[c] - height[c + 1] if c < columns - 1 else -1.0
+    if max(left, right) <= max_drop:
+        return -1
+    if left == right:
+        return c - 1 if sweep % 2 == 0 else c + 1
+    return c - 1 if left > right else c + 1
+
+
+@numba.njit(cache=True)
 def _settle(position, mass, x_min, width, columns, floor, areal_density, max_drop, sweeps, hint,
             relax):
     n = position.shape[0]
@@ -162,15 +176,8 @@ def _settle(position, mass, x_min, width, columns, floor, areal_density, max_dro
             c = step if sweep % 2 == 0 else columns - 1 - step
             if filled[c] == 0:
                 continue
-            left = height[c] - height[c - 1] if c > 0 else -1.0
-            right = height[c] - height[c + 1] if c < columns - 1 else -1.0
-            if max(left, right) <= max_drop:
-                continue
-            if left == right:
-                d = c - 1 if sweep % 2 == 0 else c + 1
-            else:
-                d = c - 1 if left > right else c + 1
-            if filled[d] >= capacity:
+            d = _downhill(height, c, max_drop, sweep)
+            if d < 0 or filled[d] >= capacity:
                 continue
             filled[c] -= 1
             p = stack[c, filled[c]]
@@ -236,6 +243,95 @@ def settle(container: Container, width: float, position: np.ndarray, mass,
     return _settle(position, np.ascontiguousarray(mass, dtype=np.float64), container.x_min,
                    width, columns, container.floor, container.areal_density,
                    np.tan(container.repose_angle) * width, int(sweeps), hint, float(relax))
+
+
+@numba.njit(cache=True)
+def _settle_loose(position, mass, x_min, width, columns, floor, areal_density, max_drop, sweeps,
+                  hint, void_gap):
+    n = position.shape[0]
+    column = np.empty(n, np.int64)
+    sorted_ = np.empty(n, np.int64)
+    start = np.empty(columns + 1, np.int64)
+    _sort_into_columns(position, x_min, width, columns, hint, column, sorted_, start)
+    count = start[1:] - start[:-1]
+    capacity = count.max() + sweeps + 1
+    stack = np.empty((columns, capacity), np.int64)
+    filled = np.zeros(columns, np.int64)
+    top = np.full(columns, floor)
+    # bottom up, each particle falls until it is at most void_gap above the stack below
+    for k in range(n):
+        p = sorted_[k]
+        c = column[p]
+        stack[c, filled[c]] = p
+        filled[c] += 1
+        half = 0.5 * mass[p] / (areal_density * width)
+        position[p, 1] = min(position[p, 1], top[c] + void_gap + half)
+        top[c] = position[p, 1] + half
+    # avalanches on the columns' real tops: the top particle of a too-steep column lands
+    # on its neighbour's top
+    for sweep in range(sweeps):
+        moved = False
+        for step in range(columns):
+            c = step if sweep % 2 == 0 else columns - 1 - step
+            if filled[c] == 0:
+                continue
+            d = _downhill(top, c, max_drop, sweep)
+            if d < 0 or filled[d] >= capacity:
+                continue
+            filled[c] -= 1
+            p = stack[c, filled[c]]
+            if filled[c] > 0:
+                below = stack[c, filled[c] - 1]
+                top[c] = position[below, 1] + 0.5 * mass[below] / (areal_density * width)
+            else:
+                top[c] = floor
+            stack[d, filled[d]] = p
+            filled[d] += 1
+            rise = mass[p] / (areal_density * width)
+            position[p, 0] += (d - c) * width
+            position[p, 1] = top[d] + 0.5 * rise
+            top[d] += rise
+            moved = True
+        if not moved:
+            break
+    k = 0
+    for c in range(columns):
+        for i in range(filled[c]):
+            sorted_[k] = stack[c, i]
+            k += 1
+    return sorted_
+
+
+def settle_loose(container: Container, width: float, position: np.ndarray, mass,
+                 void_gap: float, sweeps: int = 20, hint=None) -> np.ndarray:
+    """Let the bulk rest on its base without compacting it: voids close, the field's
+    spacing stays.
+
+    Cohesionless rock cannot stand over a void (``surrogate.rom.hanging``), but a
+    fitted field also spaces its bulk as the DEM's flow does, dilating the funnel;
+    ``settle`` re-stacks every column at the bulk density and undoes that. Here,
+    column by column from the bottom (columns of width w, the particles in their
+    height order), a particle whose lower edge is more than ``void_gap`` [m] above
+    the top of the stack below it falls to that gap (y_n <= top_{n-1} + void_gap +
+    h_n / 2, h_n = m_n / (rho_A w) its slab, top_n = y_n + h_n / 2); no particle
+    rises. Then, up to ``sweeps`` times, the top particle of every column whose
+    real top stands more than tan(repose_angle) w above a neighbour's slides onto
+    that neighbour's top (``settle``'s avalanches, on the stacks as they stand).
+
+    Returns the stacking order, as ``settle`` does (``hint``: the previous one).
+    """
+    if len(position) == 0:
+        return np.empty(0, np.int64)
+    columns = max(int(round((container.x_max - container.x_min) / width)), 1)
+    width = (container.x_max - container.x_min) / columns
+    hint = np.arange(len(position)) if hint is None else np.asarray(hint, dtype=np.int64)
+    if hint.size != len(position):
+        raise ValueError(f"hint: a permutation of the {len(position)} particles, "
+                         f"got {hint.size} entries")
+    return _settle_loose(position, np.ascontiguousarray(mass, dtype=np.float64),
+                         container.x_min, width, columns, container.floor,
+                         container.areal_density, np.tan(container.repose_angle) * width,
+                         int(sweeps), hint, float(void_gap))
 
 
 @numba.njit(cache=True)
