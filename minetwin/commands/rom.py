@@ -130,8 +130,9 @@ def register(subparsers) -> None:
     design.add_argument("--design", default="paper",
                         help="paper (default), reduced, paper_heldout (the held-out "
                              "scenes), paper_heldout_nonsmooth (those scenes by the "
-                             "nonsmooth DEM, one run each), paper_validation and "
-                             "paper_validation_drain (scenes that hold and drain a pile, "
+                             "nonsmooth DEM, one run each), paper_validation, "
+                             "paper_validation_drain and paper_validation_q2000 (scenes "
+                             "that hold a pile at 1.6 t/s, drain it and hold it at 2 t/s, "
                              "for choosing among fitted models, rom train "
                              "--validation), paper_rock and "
                              "paper_rock_inflow (a held-out pile at rock stiffness, "

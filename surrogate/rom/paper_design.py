@@ -444,6 +444,25 @@ def paper_validation_drain_design() -> Design:
                   checkpoint_interval=20.0, keep_start_states=True)
 
 
+VALIDATION_Q2000_SCENES = (("validation_q2000", 2000.0, 2000.0),)
+"""The validation scene at the paper's top throughput ``(name, discharge [kg/s],
+inflow [kg/s])``: 2 t/s in and out, on a pile (1.6 kt) neither the design nor the
+held-out scenes run at that rate pair."""
+
+
+def paper_validation_q2000_design() -> Design:
+    """A third validation scene, at the paper's 2 t/s in and out:
+    ``paper_validation_design``'s pile (the same laid-out 19,000 disks, so the same
+    settled start) for 180 s, as ``VALIDATION_REPLICAS`` DEM replicas. The other two
+    run 1.6 t/s and a drain; fits they cannot tell apart can track 2 t/s very
+    differently (surrogate/rom/README.md, "Three validation scenes")."""
+    cfg = paper_config()
+    return Design("paper_validation_q2000", cfg, paper_grid(cfg), (VALIDATION_PILE,),
+                  _heldout_runs(f"pile:{VALIDATION_PILE.name}", VALIDATION_Q2000_SCENES, 180.0,
+                                first_seed=320, replicas=VALIDATION_REPLICAS),
+                  checkpoint_interval=20.0, keep_start_states=True)
+
+
 def reduced_heldout_design() -> Design:
     """``paper_heldout_design`` on a few hundred disks and seconds (for tests)."""
     cfg = paper_config()
@@ -459,6 +478,7 @@ DESIGNS = {"paper": paper_design, "reduced": reduced_design,
            "paper_heldout_nonsmooth": paper_heldout_nonsmooth_design,
            "paper_validation": paper_validation_design,
            "paper_validation_drain": paper_validation_drain_design,
+           "paper_validation_q2000": paper_validation_q2000_design,
            "paper_rock": paper_rock_design, "paper_rock_nonsmooth": paper_rock_nonsmooth_design,
            "paper_rock_inflow": paper_rock_inflow_design,
            "paper_rock_inflow_nonsmooth": paper_rock_inflow_nonsmooth_design}
