@@ -132,6 +132,8 @@ CASES = [
      "--hanging-limit: must be only with --validation"),
     ("rom train --data {design} --out {out}/m.npz --validation {validation} "
      "--hanging-limit 1.5", "hanging_limit: must be finite and >= 0 and <= 1"),
+    ("rom train --data {bad}/folder --out {out}/m.npz --select-by floor-excess",
+     "--select-by: must be only with --validation"),
     ("rom evaluate --model {bad}/text.md --data {bad}/folder", "model: must be a MineTwin ROM"),
     ("rom evaluate --quick --workers 0 --out {out}", "--workers: must be >= 1"),
     ("fmus validate {bad}/missing.fmu", "no such file"),

@@ -460,7 +460,7 @@ def test_train_chooses_by_tracking_on_validation_scenes(reduced_run, heldout_run
     refitted alone and run again (seeded: exactly), and the model keeps the
     storage options as its defaults. The scores are compared with each other,
     never with a DEM trajectory's value."""
-    from surrogate.rom import evaluate, validation
+    from surrogate.rom import evaluate, heldout_layout, validation
     from surrogate.rom.hanging import HANGING_LIMIT
     from surrogate.rom.storage import RomStorage
 
@@ -508,6 +508,30 @@ def test_train_chooses_by_tracking_on_validation_scenes(reduced_run, heldout_run
         record["candidates"][key] for key in (flawless or record["candidates"]))
     with pytest.raises(ValidationError, match="distinct names"):
         validation.tracking_scores({"chosen": alone}, [tmp_path / "validation"] * 2, 1)
+    # beside the mean, each candidate's excess over the scene's DEM floor (its replicas'
+    # error against each other), which select_by="floor-excess" minimises instead
+    assert record["select_by"] == "mean" and "select_by" not in loaded.provenance["options"]
+    with heldout_layout.scenes_laid_out(tmp_path / "validation") as (folder, names):
+        replicas = evaluate.stable_replicas(folder / names[0])
+        references = [evaluate.outflow_of(run) for run in replicas]
+        t0 = float(replicas[0]["t0"])
+        floor = evaluate.noise_floor(references, t0, t0 + evaluate.scenario_duration(
+            folder / names[0]))["tracking_error"]
+    assert record["validation_scene_floors"] == {"small_heldout_q1000": floor}
+    assert record["candidates_floor_excess"] == pytest.approx(
+        {key: error - floor for key, error in record["candidates"].items()}, abs=1e-15)
+    by_excess = evaluate.train(tmp_path / "train_data", tmp_path / "by_excess.npz", n_mass_modes=2,
+                               n_velocity_modes=2, validation=tmp_path / "validation",
+                               storage_options=options, rom_seeds=1, select_by="floor-excess")
+    assert by_excess.validation["select_by"] == "floor-excess"
+    assert by_excess.validation["validation_floor_excess"] == min(
+        record["candidates_floor_excess"][key] for key in (resting or record["candidates"]))
+    assert by_excess.provenance["options"]["select_by"] == "floor-excess"
+    assert by_excess.provenance["regenerate"].endswith(
+        "--rom-seeds 1 --select-by floor-excess --packing none --landing-spread 0.5")
+    with pytest.raises(ValidationError, match="select_by.*mean, floor-excess"):
+        evaluate.train(tmp_path / "train_data", None, n_mass_modes=2, n_velocity_modes=2,
+                       validation=tmp_path / "validation", select_by="worst")
 
 
 def _choices_agree_with_every_model_run(summary: dict, scored: dict) -> None:

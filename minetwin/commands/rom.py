@@ -42,6 +42,11 @@ def register(subparsers) -> None:
                        help="with --validation: the largest share [-] of the bulk a candidate "
                             "may leave hanging over emptied cells at a scene's end (default "
                             "0.005, surrogate.rom.hanging; 0-1)")
+    train.add_argument("--select-by", choices=("mean", "floor-excess"), default=None,
+                       help="with --validation: choose the candidate with the smallest mean "
+                            "tracking error over the scenes (mean, the default) or the "
+                            "smallest largest excess of a scene's over its DEM noise floor "
+                            "(floor-excess; surrogate.rom.validation)")
     train.add_argument("--packing", choices=PACKINGS, default=None,
                        help="the storage's packing the model is chosen under and keeps as "
                             "its default (RomStorage's packing; default: avalanche)")
@@ -209,6 +214,8 @@ def run_train(args) -> int:
         raise ValidationError("--rom-seeds", "only with --validation")
     if args.hanging_limit is not None and args.validation is None:
         raise ValidationError("--hanging-limit", "only with --validation")
+    if args.select_by is not None and args.validation is None:
+        raise ValidationError("--select-by", "only with --validation")
     model = train(args.data, args.out, args.mass_modes, args.velocity_modes, args.ridge,
                   progress=_progress, target=args.target, flux_floor=args.flux_floor,
                   fill_law=args.fill_law, rest_fraction=args.rest_fraction,
@@ -220,7 +227,8 @@ def run_train(args) -> int:
                   rom_seeds=VALIDATION_ROM_SEEDS if args.rom_seeds is None else args.rom_seeds,
                   dispersivity=args.dispersivity,
                   hanging_limit=(HANGING_LIMIT if args.hanging_limit is None
-                                 else args.hanging_limit))
+                                 else args.hanging_limit),
+                  select_by=args.select_by or "mean")
     print(f"trained on {model.n_samples} samples, grid {model.grid.nx}x{model.grid.ny}, "
           f"modes {model.n_mass_modes}/{model.n_velocity_modes}, ridge {model.ridge:g}, "
           f"resting share {model.rest_fraction:g}; wrote {args.out}")

@@ -568,6 +568,11 @@ def _completed(model: RomModel, directory, samples: dict, dem_config: dict | Non
 VALIDATION_ROM_SEEDS = 2
 """Default ROM seeds per validation scene of ``train``'s selection by tracking."""
 
+SELECT_BY = ("mean", "floor-excess")
+"""What ``train``'s selection by tracking minimises: the mean tracking error over the
+validation scenes, or the largest excess of a scene's over its DEM noise floor
+(``surrogate.rom.validation``)."""
+
 STORAGE_SETTINGS = ("packing", "packing_density", "landing_spread", "void_gap")
 """The ``RomStorage`` options a model chosen by tracking keeps (``RomModel.storage_settings``)."""
 
@@ -594,7 +599,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
           validation=None, storage_options: dict | None = None,
           rom_seeds: int = VALIDATION_ROM_SEEDS,
           dispersivity: float | None = None,
-          hanging_limit: float = HANGING_LIMIT) -> RomModel:
+          hanging_limit: float = HANGING_LIMIT, select_by: str = "mean") -> RomModel:
     """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it).
 
     ``target`` (default "velocity"): the field the regression fits (``RomModel``);
@@ -623,7 +628,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     completed as the model is shipped, among the candidates whose bulk hangs over
     emptied cells by at most ``hanging_limit`` [-] at every scene's end (default
     ``surrogate.rom.hanging.HANGING_LIMIT``; should none, among all, and the
-    record says so: ``hanging_limit_met``).
+    record says so: ``hanging_limit_met``); ``select_by`` (``SELECT_BY``, default
+    "mean") says what is minimised there.
     The training range of the mass distribution's residual is the larger of
     the training states' own and ``leave_one_run_out_residual`` (both in
     ``validation``).
@@ -657,6 +663,9 @@ def train(directory, out=None, n_mass_modes: int | None = None,
                                       "--export`)", f"{folder} is not one")
         rom_seeds = check_rom_seeds(rom_seeds)
         hanging_limit = float(check_finite_range("hanging_limit", hanging_limit, 0.0, 1.0))
+        if select_by not in SELECT_BY:
+            raise ValidationError("select_by", f"one of {', '.join(SELECT_BY)}",
+                                  f"got {select_by!r}")
     # RomModel checks the registration's value when the first candidate is fitted
     registered = (registration, None if registration is None
                   else settled_density(directory)["density"])
@@ -685,7 +694,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         scores = tracking_scores(fitted, validation, rom_seeds, progress)
         resting = [key for key, entry in scores.items()
                    if entry["hanging_mass_share"] <= hanging_limit]
-        best = min(resting or scores, key=lambda key: scores[key]["tracking_error"])
+        criterion = "tracking_error" if select_by == "mean" else "floor_excess"
+        best = min(resting or scores, key=lambda key: scores[key][criterion])
         model = fitted[best]
         names = [Path(folder).name for folder in validation]
         validation_record = {
@@ -694,8 +704,13 @@ def train(directory, out=None, n_mass_modes: int | None = None,
             "storage_settings": storage_options,
             "validation_tracking_error": scores[best]["tracking_error"],
             "validation_scenes": scores[best]["scenes"],
+            "select_by": select_by,
+            "validation_floor_excess": scores[best]["floor_excess"],
+            "validation_scene_floors": scores[best]["scene_floors"],
             "candidates": {"/".join(f"{x:g}" for x in key): entry["tracking_error"]
                            for key, entry in scores.items()},
+            "candidates_floor_excess": {"/".join(f"{x:g}" for x in key): entry["floor_excess"]
+                                        for key, entry in scores.items()},
             "hanging_limit": hanging_limit, "hanging_limit_met": bool(resting),
             "candidates_hanging_mass_share": {
                 "/".join(f"{x:g}" for x in key): entry["hanging_mass_share"]
@@ -705,7 +720,9 @@ def train(directory, out=None, n_mass_modes: int | None = None,
                            "of its bulk hanging over emptied cells; chosen by tracking alone")
         _say(progress, f"model selection: modes {best[0]}/{best[1]}, ridge {best[2]:g}, "
                        f"tracking error {scores[best]['tracking_error']:.3f} on the "
-                       f"validation scenes, {len(resting)} of {len(scores)} candidates resting")
+                       f"validation scenes (at most {scores[best]['floor_excess']:.3f} over "
+                       f"a scene's DEM floor), {len(resting)} of {len(scores)} candidates "
+                       f"resting")
     elif len(candidates) * len(floors) > 1 and np.unique(samples["run"]).size > 1:
         scores = leave_one_run_out_errors(grid, samples, candidates, target, container,
                                           floors if flux else None, fill_law, registered)
@@ -745,6 +762,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
                            rom_seeds=rom_seeds)
             if hanging_limit != HANGING_LIMIT:
                 options.update(hanging_limit=hanging_limit)
+            if select_by != "mean":
+                options.update(select_by=select_by)
         options.update(storage_options)
         model.provenance = training_provenance(directory, out, options)
         model.save(out)
