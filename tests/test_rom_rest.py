@@ -12,7 +12,8 @@ import pytest
 from cosim.errors import ValidationError
 from surrogate.rom import column_profile, rest
 from surrogate.rom.model import RomModel
-from surrogate.rom.storage import DEFAULT_MODEL, FIXED_GRID_MODEL, REGISTERED_MODEL, RomStorage
+from surrogate.rom.storage import (DEFAULT_MODEL, FIXED_GRID_MODEL, LOOSE_MODEL, REGISTERED_MODEL,
+                                   RomStorage)
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "surrogate" / "rom" / "data"
@@ -40,8 +41,9 @@ def test_cells_slower_than_the_share_of_the_outlet_speed_rest():
         rest.at_rest(field, 2000.0, point, 0.08)
 
 
-@pytest.mark.parametrize("model_file, share", [(FIXED_GRID_MODEL, 0.08), (REGISTERED_MODEL, 0.06)],
-                         ids=["fixed_grid", "registered"])
+@pytest.mark.parametrize("model_file, share", [(FIXED_GRID_MODEL, 0.08), (REGISTERED_MODEL, 0.06),
+                                               (LOOSE_MODEL, 0.06)],
+                         ids=["fixed_grid", "registered", "loose"])
 def test_the_share_is_fitted_on_the_training_design_by_youdens_index(model_file, share):
     model = RomModel.load(model_file)
     result = rest.fit(DATA / "paper_design", model)
