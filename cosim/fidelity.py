@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -407,7 +408,6 @@ def read_cards(path) -> list[FidelityCard]:
     """The cards of a file written by ``write_cards``; a bad file is a
     ``ValidationError`` naming it."""
     import json
-    from pathlib import Path
 
     field_name = f"cards file {path}"
     try:
@@ -423,12 +423,11 @@ def read_cards(path) -> list[FidelityCard]:
             for k, c in enumerate(data.get("cards", []))]
 
 
-def own_cards_file(model_file) -> "Path":
+def own_cards_file(model_file) -> Path:
     """Where a trained model file keeps its own cards: beside it, with the suffix
     ``.cards.json`` (``rom_model.npz`` -> ``rom_model.cards.json``). A stockpile
     that runs that model reads them too; ``minetwin fidelity calibrate --model``
     writes there by default."""
-    from pathlib import Path
 
     return Path(model_file).with_suffix(".cards.json")
 
