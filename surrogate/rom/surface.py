@@ -150,17 +150,25 @@ def _downhill(height, c, max_drop, sweep):
 
 
 @numba.njit(cache=True)
-def _settle(position, mass, x_min, width, columns, floor, areal_density, max_drop, sweeps, hint,
-            relax):
+def _column_stacks(position, x_min, width, columns, hint, sweeps):
+    """The particles in column and height order (``sorted_``, each one's ``column``) and
+    empty stacks with room for ``sweeps`` avalanches onto any column."""
     n = position.shape[0]
     column = np.empty(n, np.int64)
     sorted_ = np.empty(n, np.int64)
     start = np.empty(columns + 1, np.int64)
     _sort_into_columns(position, x_min, width, columns, hint, column, sorted_, start)
-    count = start[1:] - start[:-1]
-    capacity = count.max() + sweeps + 1
-    stack = np.empty((columns, capacity), np.int64)
-    filled = np.zeros(columns, np.int64)
+    capacity = (start[1:] - start[:-1]).max() + sweeps + 1
+    return column, sorted_, np.empty((columns, capacity), np.int64), np.zeros(columns, np.int64)
+
+
+@numba.njit(cache=True)
+def _settle(position, mass, x_min, width, columns, floor, areal_density, max_drop, sweeps, hint,
+            relax):
+    column, sorted_, stack, filled = _column_stacks(position, x_min, width, columns, hint,
+                                                    sweeps)
+    capacity = stack.shape[1]
+    n = position.shape[0]
     height = np.full(columns, floor)
     for k in range(n):
         p = sorted_[k]
@@ -248,15 +256,10 @@ def settle(container: Container, width: float, position: np.ndarray, mass,
 @numba.njit(cache=True)
 def _settle_loose(position, mass, x_min, width, columns, floor, areal_density, max_drop, sweeps,
                   hint, void_gap):
+    column, sorted_, stack, filled = _column_stacks(position, x_min, width, columns, hint,
+                                                    sweeps)
+    capacity = stack.shape[1]
     n = position.shape[0]
-    column = np.empty(n, np.int64)
-    sorted_ = np.empty(n, np.int64)
-    start = np.empty(columns + 1, np.int64)
-    _sort_into_columns(position, x_min, width, columns, hint, column, sorted_, start)
-    count = start[1:] - start[:-1]
-    capacity = count.max() + sweeps + 1
-    stack = np.empty((columns, capacity), np.int64)
-    filled = np.zeros(columns, np.int64)
     top = np.full(columns, floor)
     # bottom up, each particle falls until it is at most void_gap above the stack below
     for k in range(n):
