@@ -152,32 +152,32 @@ def _downhill(height, c, max_drop, sweep):
 @numba.njit(cache=True)
 def _column_stacks(position, x_min, width, columns, hint, sweeps):
     """The particles in column and height order (``sorted_``, each one's ``column``) and
-    empty stacks with room for ``sweeps`` avalanches onto any column."""
+    each column's stack (bottom first, ``filled`` deep), with room for ``sweeps``
+    avalanches onto any column."""
     n = position.shape[0]
     column = np.empty(n, np.int64)
     sorted_ = np.empty(n, np.int64)
     start = np.empty(columns + 1, np.int64)
     _sort_into_columns(position, x_min, width, columns, hint, column, sorted_, start)
     capacity = (start[1:] - start[:-1]).max() + sweeps + 1
-    return column, sorted_, np.empty((columns, capacity), np.int64), np.zeros(columns, np.int64)
+    stack = np.empty((columns, capacity), np.int64)
+    filled = np.zeros(columns, np.int64)
+    for k in range(n):
+        c = column[sorted_[k]]
+        stack[c, filled[c]] = sorted_[k]
+        filled[c] += 1
+    return column, sorted_, stack, filled
 
 
 @numba.njit(cache=True)
-def _settle(position, mass, x_min, width, columns, floor, areal_density, max_drop, sweeps, hint,
-            relax):
-    column, sorted_, stack, filled = _column_stacks(position, x_min, width, columns, hint,
-                                                    sweeps)
+def _avalanches(position, mass, stack, filled, height, floor, column_density, width, max_drop,
+                sweeps, on_tops):
+    """Up to ``sweeps`` sweeps, alternating direction: the top particle of every column
+    more than ``max_drop`` above a neighbour slides onto it (``_downhill``). ``height``:
+    each column's packed height (its mass over ``column_density``), or with ``on_tops``
+    the real top of its top particle, on which the sliding particle then lands."""
+    columns = filled.size
     capacity = stack.shape[1]
-    n = position.shape[0]
-    height = np.full(columns, floor)
-    for k in range(n):
-        p = sorted_[k]
-        c = column[p]
-        stack[c, filled[c]] = p
-        filled[c] += 1
-        height[c] += mass[p] / (areal_density * width)
-    # angle-of-repose relaxation: the top particle of a too-steep column slides
-    # over; sweeps alternate direction and ties alternate side (no drift bias)
     for sweep in range(sweeps):
         moved = False
         for step in range(columns):
@@ -191,13 +191,37 @@ def _settle(position, mass, x_min, width, columns, floor, areal_density, max_dro
             p = stack[c, filled[c]]
             stack[d, filled[d]] = p
             filled[d] += 1
-            rise = mass[p] / (areal_density * width)
-            height[c] -= rise
-            height[d] += rise
+            rise = mass[p] / column_density
             position[p, 0] += (d - c) * width
+            if on_tops:
+                if filled[c] > 0:
+                    below = stack[c, filled[c] - 1]
+                    height[c] = position[below, 1] + 0.5 * mass[below] / column_density
+                else:
+                    height[c] = floor
+                position[p, 1] = height[d] + 0.5 * rise
+            else:
+                height[c] -= rise
+            height[d] += rise
             moved = True
         if not moved:
             break
+
+
+@numba.njit(cache=True)
+def _settle(position, mass, x_min, width, columns, floor, areal_density, max_drop, sweeps, hint,
+            relax):
+    column, sorted_, stack, filled = _column_stacks(position, x_min, width, columns, hint,
+                                                    sweeps)
+    n = position.shape[0]
+    height = np.full(columns, floor)
+    for k in range(n):
+        p = sorted_[k]
+        height[column[p]] += mass[p] / (areal_density * width)
+    # angle-of-repose relaxation: the top particle of a too-steep column slides
+    # over; sweeps alternate direction and ties alternate side (no drift bias)
+    _avalanches(position, mass, stack, filled, height, floor, areal_density * width, width,
+                max_drop, sweeps, False)
     # density projection: each column is a packed stack in its particles' height order
     k = 0
     for c in range(columns):
@@ -213,6 +237,18 @@ def _settle(position, mass, x_min, width, columns, floor, areal_density, max_dro
             sorted_[k] = p
             k += 1
     return sorted_
+
+
+def _columns_and_hint(container: Container, width: float, position, hint):
+    """The container's column count, their width [m] nearest ``width``, and the
+    checked ``hint`` (identity if None) of ``settle`` and ``settle_loose``."""
+    columns = max(int(round((container.x_max - container.x_min) / width)), 1)
+    width = (container.x_max - container.x_min) / columns
+    hint = np.arange(len(position)) if hint is None else np.asarray(hint, dtype=np.int64)
+    if hint.size != len(position):
+        raise ValueError(f"hint: a permutation of the {len(position)} particles, "
+                         f"got {hint.size} entries")
+    return columns, width, hint
 
 
 def settle(container: Container, width: float, position: np.ndarray, mass,
@@ -242,12 +278,7 @@ def settle(container: Container, width: float, position: np.ndarray, mass,
     """
     if len(position) == 0:
         return np.empty(0, np.int64)
-    columns = max(int(round((container.x_max - container.x_min) / width)), 1)
-    width = (container.x_max - container.x_min) / columns
-    hint = np.arange(len(position)) if hint is None else np.asarray(hint, dtype=np.int64)
-    if hint.size != len(position):
-        raise ValueError(f"hint: a permutation of the {len(position)} particles, "
-                         f"got {hint.size} entries")
+    columns, width, hint = _columns_and_hint(container, width, position, hint)
     return _settle(position, np.ascontiguousarray(mass, dtype=np.float64), container.x_min,
                    width, columns, container.floor, container.areal_density,
                    np.tan(container.repose_angle) * width, int(sweeps), hint, float(relax))
@@ -258,45 +289,19 @@ def _settle_loose(position, mass, x_min, width, columns, floor, areal_density, m
                   hint, void_gap):
     column, sorted_, stack, filled = _column_stacks(position, x_min, width, columns, hint,
                                                     sweeps)
-    capacity = stack.shape[1]
     n = position.shape[0]
     top = np.full(columns, floor)
     # bottom up, each particle falls until it is at most void_gap above the stack below
     for k in range(n):
         p = sorted_[k]
         c = column[p]
-        stack[c, filled[c]] = p
-        filled[c] += 1
         half = 0.5 * mass[p] / (areal_density * width)
         position[p, 1] = min(position[p, 1], top[c] + void_gap + half)
         top[c] = position[p, 1] + half
     # avalanches on the columns' real tops: the top particle of a too-steep column lands
     # on its neighbour's top
-    for sweep in range(sweeps):
-        moved = False
-        for step in range(columns):
-            c = step if sweep % 2 == 0 else columns - 1 - step
-            if filled[c] == 0:
-                continue
-            d = _downhill(top, c, max_drop, sweep)
-            if d < 0 or filled[d] >= capacity:
-                continue
-            filled[c] -= 1
-            p = stack[c, filled[c]]
-            if filled[c] > 0:
-                below = stack[c, filled[c] - 1]
-                top[c] = position[below, 1] + 0.5 * mass[below] / (areal_density * width)
-            else:
-                top[c] = floor
-            stack[d, filled[d]] = p
-            filled[d] += 1
-            rise = mass[p] / (areal_density * width)
-            position[p, 0] += (d - c) * width
-            position[p, 1] = top[d] + 0.5 * rise
-            top[d] += rise
-            moved = True
-        if not moved:
-            break
+    _avalanches(position, mass, stack, filled, top, floor, areal_density * width, width,
+                max_drop, sweeps, True)
     k = 0
     for c in range(columns):
         for i in range(filled[c]):
@@ -325,12 +330,7 @@ def settle_loose(container: Container, width: float, position: np.ndarray, mass,
     """
     if len(position) == 0:
         return np.empty(0, np.int64)
-    columns = max(int(round((container.x_max - container.x_min) / width)), 1)
-    width = (container.x_max - container.x_min) / columns
-    hint = np.arange(len(position)) if hint is None else np.asarray(hint, dtype=np.int64)
-    if hint.size != len(position):
-        raise ValueError(f"hint: a permutation of the {len(position)} particles, "
-                         f"got {hint.size} entries")
+    columns, width, hint = _columns_and_hint(container, width, position, hint)
     return _settle_loose(position, np.ascontiguousarray(mass, dtype=np.float64),
                          container.x_min, width, columns, container.floor,
                          container.areal_density, np.tan(container.repose_angle) * width,
