@@ -577,6 +577,11 @@ STORAGE_SETTINGS = ("packing", "packing_density", "landing_spread", "void_gap")
 """The ``RomStorage`` options a model chosen by tracking keeps (``RomModel.storage_settings``)."""
 
 
+def _candidate_name(key: tuple) -> str:
+    """A candidate's options as its record names them: modes/modes/ridge (``4/16/10``)."""
+    return "/".join(f"{x:g}" for x in key)
+
+
 def check_storage_options(options: dict | None) -> dict:
     """``options`` (``STORAGE_SETTINGS`` only, None values dropped) as ``RomStorage``
     takes them, checked by its own rules; anything else is refused naming it."""
@@ -698,6 +703,10 @@ def train(directory, out=None, n_mass_modes: int | None = None,
         best = min(resting or scores, key=lambda key: scores[key][criterion])
         model = fitted[best]
         names = [Path(folder).name for folder in validation]
+
+        def by_candidate(score):
+            return {_candidate_name(key): entry[score] for key, entry in scores.items()}
+
         validation_record = {
             "selected_by": "tracking on validation scenes",
             "validation_data": names[0] if len(names) == 1 else names, "rom_seeds": rom_seeds,
@@ -707,14 +716,10 @@ def train(directory, out=None, n_mass_modes: int | None = None,
             "select_by": select_by,
             "validation_floor_excess": scores[best]["floor_excess"],
             "validation_scene_floors": scores[best]["scene_floors"],
-            "candidates": {"/".join(f"{x:g}" for x in key): entry["tracking_error"]
-                           for key, entry in scores.items()},
-            "candidates_floor_excess": {"/".join(f"{x:g}" for x in key): entry["floor_excess"]
-                                        for key, entry in scores.items()},
+            "candidates": by_candidate("tracking_error"),
+            "candidates_floor_excess": by_candidate("floor_excess"),
             "hanging_limit": hanging_limit, "hanging_limit_met": bool(resting),
-            "candidates_hanging_mass_share": {
-                "/".join(f"{x:g}" for x in key): entry["hanging_mass_share"]
-                for key, entry in scores.items()}}
+            "candidates_hanging_mass_share": by_candidate("hanging_mass_share")}
         if not resting:
             _say(progress, f"model selection: every candidate leaves more than {hanging_limit:g} "
                            "of its bulk hanging over emptied cells; chosen by tracking alone")
@@ -728,7 +733,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
                                           floors if flux else None, fill_law, registered)
         best = min(scores, key=scores.get)
         validation_record = {"leave_one_run_out_velocity_rel_error": scores[best],
-                             "candidates": {"/".join(f"{x:g}" for x in key): e
+                             "candidates": {_candidate_name(key): e
                                             for key, e in scores.items()}}
         _say(progress, f"model selection: modes {best[0]}/{best[1]}, ridge {best[2]:g}, "
                        + (f"flux floor {best[3]:g}, " if flux else "")
