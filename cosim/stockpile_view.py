@@ -207,9 +207,18 @@ def predicted_feed(storage, horizon_s: float, discharge_rate: float) -> dict:
     D80 [m] (NaN when nothing is expected), particle count, the tracking
     ids expected and the mass [kg] per origin (``mass_by_origin``, source
     index -> kg, see ``origins``)."""
-    horizon_s = float(check_finite_range("horizon_s", horizon_s, 0.0, unit="s"))
-    ids, share = storage.predict(horizon_s, discharge_rate)
-    store = storage.particles
+    return predicted_feeds(storage, (horizon_s,), discharge_rate)[0]
+
+
+def predicted_feeds(storage, horizons_s, discharge_rate: float) -> list[dict]:
+    """``predicted_feed`` for each of ``horizons_s`` [s], from one forecast of the
+    model (``StorageModel.predict_each``)."""
+    horizons_s = [float(check_finite_range("horizon_s", h, 0.0, unit="s")) for h in horizons_s]
+    return [_feed_summary(storage.particles, horizon, ids, share) for horizon, (ids, share)
+            in zip(horizons_s, storage.predict_each(horizons_s, discharge_rate))]
+
+
+def _feed_summary(store, horizon_s: float, ids: np.ndarray, share: np.ndarray) -> dict:
     slots = store.slots(ids)
     mass = float(share.sum())
     grade = _weighted_mean(share, store.grade[slots])

@@ -27,7 +27,8 @@ parameters, a model that reads a trained state from a file does it in
 ``predict(horizon, discharge_rate)``
     the feed predicted for the next ``horizon`` seconds: ``(ids, mass)``,
     the particles expected to leave and the mass [kg] of each expected to
-    leave (paper section "Predicting the properties of the mill feed").
+    leave (paper section "Predicting the properties of the mill feed");
+    ``predict_each(horizons, discharge_rate)`` gives it for several horizons.
 
 Capabilities are class attributes with defaults on ``StorageModel``
 (``has_geometry``, ``checkpointable``, ``arrivals_join_the_tail``), read from
@@ -57,6 +58,15 @@ def check_discharge_rate(rate: float, limit: float = MAX_DISCHARGE_RATE) -> floa
     if not np.isfinite(rate) or rate < 0 or rate > limit:
         raise ValidationError("discharge_rate", f"in [0, {limit:g}] kg/s", f"got {rate!r}")
     return rate
+
+
+def budget_shares(order: np.ndarray, masses: np.ndarray, budget_kg: float):
+    """``(ids, mass_kg)``: the particles ``order`` (ids in their order of leaving,
+    of ``masses`` [kg]) that a feeder budget of ``budget_kg`` [kg] draws, the last
+    one in part."""
+    share = np.clip(budget_kg - (np.cumsum(masses) - masses), 0.0, masses)
+    keep = share > 0
+    return order[keep], share[keep]
 
 
 class StorageModel:
@@ -187,11 +197,13 @@ class StorageModel:
         rate = check_discharge_rate(discharge_rate)
         order = self.held_ids()
         masses = self.particles.mass[self.particles.slots(order)]
-        budget = self._credit_kg + rate * horizon
-        before = np.cumsum(masses) - masses
-        share = np.clip(budget - before, 0.0, masses)
-        keep = share > 0
-        return order[keep], share[keep]
+        return budget_shares(order, masses, self._credit_kg + rate * horizon)
+
+    def predict_each(self, horizons, discharge_rate: float) -> list:
+        """``predict`` for each of ``horizons`` [s] (a profile of the feed). A model
+        whose forecast is costly (the ROM runs its flow forward) overrides this to
+        read every horizon from one forecast."""
+        return [self.predict(horizon, discharge_rate) for horizon in horizons]
 
     def _forget(self, ids: np.ndarray) -> None:
         raise NotImplementedError

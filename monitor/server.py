@@ -17,8 +17,8 @@ stockpile_url : str
     Base URL of the stockpile's REST interface, e.g. ``http://127.0.0.1:8081``.
 timeout_s : float
     Time [s] the proxy waits for the stockpile before calling it
-    unreachable, default 3; for ``/feed`` (30 predictions: 2.9 s for a ROM
-    pile of 1,500 t on a loaded machine) ``FEED_TIMEOUT_S``.
+    unreachable, default 3; for ``/feed`` (a forecast of the pile's flow, the
+    slowest answer) ``FEED_TIMEOUT_S``.
 config : dict or None
     Capacity and alarm limits (``monitor.config``), served to the page at
     ``/monitor/config``; default ``monitor.config.DEFAULTS``.

@@ -163,6 +163,11 @@ class StockpileClient:
         self.lags_s: list[float] = []
         self.reconnects = 0
         self._stop = asyncio.Event()
+        self.exchange_idle = asyncio.Event()
+        """Set except while an exchange cycle runs: the REST interface answers in
+        between (``surrogate.rest.create_app``), so that reading the pile never
+        stretches a cycle (its lag)."""
+        self.exchange_idle.set()
         self.nodes: dict = {}
         # [(plant time [s], setpoint [kg/s])] the plant published, oldest first;
         # empty: the setpoint read in the cycle applies to the whole cycle
@@ -548,6 +553,13 @@ class StockpileClient:
 
     async def cycle(self) -> None:
         """One exchange cycle (see the module docstring)."""
+        self.exchange_idle.clear()
+        try:
+            await self._cycle()
+        finally:
+            self.exchange_idle.set()
+
+    async def _cycle(self) -> None:
         from asyncua import ua
 
         n = self.nodes
@@ -659,7 +671,8 @@ class StockpileClient:
         if self.o.rest_port is not None:
             from surrogate.rest import start_rest
 
-            rest, port = await start_rest(self.asset, "127.0.0.1", self.o.rest_port)
+            rest, port = await start_rest(self.asset, "127.0.0.1", self.o.rest_port,
+                                          exchange_idle=self.exchange_idle)
             print(f"stockpile: REST on http://127.0.0.1:{port}/", file=sys.stderr, flush=True)
             if self.o.rest_port_file:
                 Path(self.o.rest_port_file).write_text(str(port))

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from cosim.errors import ValidationError
-from cosim.storage import StorageModel, check_discharge_rate
+from cosim.storage import StorageModel, budget_shares, check_discharge_rate
 from surrogate.dem import Dem, DemConfig
 
 
@@ -169,12 +169,8 @@ class DemStorage(StorageModel):
         # the feeder draws no more than its opening passes (Dem.set_discharge_rate)
         rate = min(rate, self.dem.cfg.orifice_capacity())
         order = self._funnel_order()
-        masses = self.dem.mass[order]
-        budget = float(self.dem.credits[self.outlet]) + rate * float(horizon)
-        before = np.cumsum(masses) - masses
-        share = np.clip(budget - before, 0.0, masses)
-        keep = share > 0
-        return self.dem.id[order][keep], share[keep]
+        return budget_shares(self.dem.id[order], self.dem.mass[order],
+                             float(self.dem.credits[self.outlet]) + rate * float(horizon))
 
     def _funnel_order(self) -> np.ndarray:
         centre = self.dem.cfg.outlets[self.outlet]

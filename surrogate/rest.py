@@ -14,7 +14,8 @@ Two parts:
     bound to a ``ParticleStore`` (FIFO, mixing, ROM, DEM): ``time``,
     ``discharge_rate``, ``totals()``, ``history(since)``, ``fields(nx, ny)``,
     ``particle_table(limit, offset)``, ``predicted_feed(horizon_s)``,
-    ``events(since)``, ``layout`` and ``origin_names()``. The owner of the
+    ``predicted_feeds(horizons_s)``, ``events(since)``, ``layout`` and
+    ``origin_names()``. The owner of the
     storage calls ``record()`` after each step to extend the time series;
     ``record`` also compares the particles held with the previous call's to
     find the lots in and out (``surrogate.lots``) and the actual discharge
@@ -79,6 +80,9 @@ MAX_EVENTS_PAGE = 5000
 
 MAX_HORIZON_S = 3600.0
 """Longest feed prediction [s]."""
+
+EXCHANGE_WAIT_S = 0.5
+"""Longest time [s] a request waits for the owner's exchange cycle to end."""
 
 FEED_PROFILE_INTERVALS = 30
 """``/feed`` also gives the prediction per interval: horizon / 30 each."""
@@ -215,6 +219,11 @@ class StorageView:
         (``cosim.stockpile_view.predicted_feed``)."""
         return view.predicted_feed(self.storage, horizon_s, self.discharge_rate)
 
+    def predicted_feeds(self, horizons_s) -> list[dict]:
+        """``predicted_feed`` for each of ``horizons_s`` [s], from one forecast
+        (``cosim.stockpile_view.predicted_feeds``)."""
+        return view.predicted_feeds(self.storage, horizons_s, self.discharge_rate)
+
 
 # ----------------------------------------------------------- query parameters
 def _query_number(request, field, default, low, high, *, integer=False, low_open=False):
@@ -235,14 +244,21 @@ def _query_number(request, field, default, low, high, *, integer=False, low_open
 
 
 # ------------------------------------------------------------------ the server
-def create_app(asset, lock=None) -> web.Application:
+def create_app(asset, lock=None, exchange_idle=None,
+               exchange_wait_s: float = EXCHANGE_WAIT_S) -> web.Application:
     """aiohttp application serving ``asset`` read-only.
 
     ``asset`` has the stockpile protocol (see ``StorageView``). ``lock`` (a
     ``threading.Lock``) is held while reading the asset when the simulation
-    runs in another thread (``serve_in_thread``).
+    runs in another thread (``serve_in_thread``). ``exchange_idle`` (an
+    ``asyncio.Event`` of the same loop, set between the owner's exchange cycles)
+    holds each request until it is set, at most ``exchange_wait_s`` [s]: a
+    request answered inside a cycle would stretch it (the stockpile client's lag).
     """
-    app = web.Application(middlewares=[_errors_as_json])
+    middlewares = [_errors_as_json]
+    if exchange_idle is not None:
+        middlewares.append(_between_cycles(exchange_idle, exchange_wait_s))
+    app = web.Application(middlewares=middlewares)
 
     def read(method, *args):
         if lock is None:
@@ -318,11 +334,11 @@ def create_app(asset, lock=None) -> web.Application:
 def _feed_with_profile(asset, horizon: float) -> tuple[dict, dict]:
     """The asset's predicted feed for ``horizon`` [s], and per interval of
     horizon / FEED_PROFILE_INTERVALS the mass [kg], grade and hardness
-    predicted to leave in it, and its mass [kg] from each origin
+    predicted to leave in it (one forecast read at every interval's end), and its mass [kg] from each origin
     (``origins``: the source indices; ``origin_mass_kg``: one row per origin),
     all differences of the cumulative predictions."""
     ends = np.linspace(0.0, horizon, FEED_PROFILE_INTERVALS + 1)[1:]
-    cumulative = [asset.predicted_feed(float(h)) for h in ends]
+    cumulative = asset.predicted_feeds([float(h) for h in ends])
     by_origin = [feed.pop("mass_by_origin") for feed in cumulative]
     sources = sorted(set().union(*by_origin))
     mass = np.array([feed["mass_kg"] for feed in cumulative])
@@ -367,12 +383,35 @@ async def _errors_as_json(request, handler):
                                  headers=allow)
 
 
-async def start_rest(asset, host: str = "127.0.0.1", port: int = 0, lock=None):
-    """Serve ``asset`` on ``host:port`` (0: a free port) in the running loop.
+def _between_cycles(exchange_idle: asyncio.Event, wait_s: float):
+    """Middleware: the handler runs once ``exchange_idle`` is set (a handler reads
+    the asset without yielding, so no cycle starts before it has answered), or
+    after ``wait_s`` [s] anyway, so that back-to-back cycles (catching up,
+    lockstep) never starve a reader."""
+    @web.middleware
+    async def after_the_cycle(request, handler):
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + wait_s
+        # woken when the cycle ends, a request may find the next already begun
+        while not exchange_idle.is_set() and (left := deadline - loop.time()) > 0:
+            try:
+                await asyncio.wait_for(exchange_idle.wait(), left)
+            except TimeoutError:
+                break
+        return await handler(request)
+
+    return after_the_cycle
+
+
+async def start_rest(asset, host: str = "127.0.0.1", port: int = 0, lock=None,
+                     exchange_idle=None):
+    """Serve ``asset`` on ``host:port`` (0: a free port) in the running loop,
+    between the owner's exchange cycles if it gives ``exchange_idle``
+    (``create_app``).
 
     Returns ``(runner, actual_port)``; stop with ``await runner.cleanup()``.
     """
-    runner = web.AppRunner(create_app(asset, lock), access_log=None)
+    runner = web.AppRunner(create_app(asset, lock, exchange_idle), access_log=None)
     await runner.setup()
     site = web.TCPSite(runner, host, port)
     await site.start()

@@ -285,3 +285,8 @@ class StockpileAsset:
         """Feed predicted to leave within ``horizon_s`` at the current setpoint
         (``cosim.stockpile_view.predicted_feed``)."""
         return view.predicted_feed(self.storage, horizon_s, self.discharge_rate)
+
+    def predicted_feeds(self, horizons_s) -> list[dict]:
+        """``predicted_feed`` for each of ``horizons_s`` [s], from one forecast
+        (``cosim.stockpile_view.predicted_feeds``)."""
+        return view.predicted_feeds(self.storage, horizons_s, self.discharge_rate)

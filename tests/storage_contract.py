@@ -177,7 +177,23 @@ def check_prediction_is_of_held_particles(name: str, tmp: Path) -> None:
     assert share.sum() > 0
 
 
+def check_feed_profile_grows_with_the_horizon(name: str, tmp: Path) -> None:
+    """``predict_each``: one feed per horizon, of held particles, the mass never
+    less for a longer horizon, the longest one ``predict``'s exactly."""
+    model = build(name, tmp)
+    run(model, steps=4)
+    horizons = [1.0, 2.5, 5.0]
+    profile = model.predict_each(horizons, RATE)
+    assert len(profile) == len(horizons)
+    masses = [share.sum() for _, share in profile]
+    assert masses == sorted(masses) and masses[0] > 0
+    assert all(np.isin(ids, model.held_ids()).all() for ids, _ in profile)
+    ids, share = model.predict(5.0, RATE)
+    np.testing.assert_array_equal(profile[-1][0], ids)
+    np.testing.assert_array_equal(profile[-1][1], share)
+
+
 CONTRACT = (check_mass_and_ids_are_conserved, check_capabilities_are_declared_class_attributes,
             check_rng_seeds_the_model, check_checkpoint_restores_exactly,
-            check_prediction_is_of_held_particles)
+            check_prediction_is_of_held_particles, check_feed_profile_grows_with_the_horizon)
 """The checks every registered storage model passes."""

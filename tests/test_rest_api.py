@@ -27,7 +27,8 @@ from cosim.particles import ParticleStore
 from cosim.sizes import d_passing
 from cosim.storage import MixingStorage, make_storage
 from surrogate.dem_storage import DemStorage
-from surrogate.rest import OPENAPI, RestComponent, StorageView, serve_in_thread
+from surrogate.rest import (EXCHANGE_WAIT_S, OPENAPI, RestComponent, StorageView,
+                            serve_in_thread, start_rest)
 from surrogate.rom.container import Container
 from surrogate.rom.grid import Grid, mass_field
 from surrogate.rom.model import OutOfTrainingRange, RomModel
@@ -529,3 +530,40 @@ def test_api_conforms_to_its_openapi_document(case, stockpile_url):
     """Generated requests, valid and invalid: no server error, responses
     conform to the document, valid requests accepted, invalid ones refused."""
     case.call_and_validate(base_url=stockpile_url)
+
+
+def test_a_request_waits_for_the_exchange_cycle_to_end():
+    """With ``exchange_idle`` (the stockpile client's), a request made during an
+    exchange cycle is answered only after it, so reading the pile never stretches
+    a cycle; with no cycle ending, it is answered after ``exchange_wait_s`` anyway."""
+    import asyncio
+
+    import aiohttp
+
+    async def scenario():
+        idle = asyncio.Event()  # a cycle is running
+        runner, port = await start_rest(_fed_stockpile(), "127.0.0.1", 0, exchange_idle=idle)
+        try:
+            async with aiohttp.ClientSession() as session:
+                async def totals():
+                    async with session.get(f"http://127.0.0.1:{port}/totals") as response:
+                        return response.status, await response.json()
+
+                request = asyncio.ensure_future(totals())
+                await asyncio.sleep(0.3)
+                held_during_cycle = not request.done()
+                idle.set()  # the cycle ended
+                status, body = await asyncio.wait_for(request, 30.0)
+                idle.clear()  # cycles back to back: never idle
+                loop = asyncio.get_running_loop()
+                start = loop.time()
+                starved_status, _ = await asyncio.wait_for(totals(), 30.0)
+                waited = loop.time() - start
+        finally:
+            await runner.cleanup()
+        return held_during_cycle, status, body, starved_status, waited
+
+    held_during_cycle, status, body, starved_status, waited = asyncio.run(scenario())
+    assert held_during_cycle
+    assert status == 200 and body["held_mass_kg"] == pytest.approx(10 * BIN_KG - 5 * RATE_KG_S)
+    assert starved_status == 200 and waited >= EXCHANGE_WAIT_S

@@ -173,6 +173,30 @@ def test_feed_prediction_covers_the_horizon_from_the_funnel(trained):
     assert np.abs(store.position[store.slots(ids), 0]).max() < 6.0
 
 
+@pytest.mark.filterwarnings("ignore::surrogate.rom.model.OutOfTrainingRange")
+def test_feed_profile_is_read_from_one_forecast(trained):
+    """``predict_each``: every horizon's feed is a prefix of the longest one's (one
+    forecast, so the profile's intervals never go negative), each covers the
+    feeder's budget, the longest is ``predict``'s to the last bit, and the
+    forecast leaves the pile as it was."""
+    model, _ = trained
+    store, storage, _ = filled_storage(model, np.random.default_rng(2))
+    storage.step(0.0, 1.0, 200.0)
+    before = storage.bulk_snapshot(1.0)
+    horizons = [5.0, 10.0, 20.0, 30.0]
+    profile = storage.predict_each(horizons, 200.0)
+    longest_ids, longest_share = storage.predict(30.0, 200.0)
+    np.testing.assert_array_equal(profile[-1][0], longest_ids)
+    np.testing.assert_array_equal(profile[-1][1], longest_share)
+    for horizon, (ids, share) in zip(horizons, profile):
+        assert share.sum() == pytest.approx(storage._credit_kg + 200.0 * horizon, rel=1e-12)
+        np.testing.assert_array_equal(ids, longest_ids[:ids.size])
+        np.testing.assert_array_equal(share[:-1], longest_share[:ids.size - 1])
+    after = storage.bulk_snapshot(1.0)
+    for key in ("id", "position", "mass"):
+        np.testing.assert_array_equal(after[key], before[key])
+
+
 def test_tracking_error_bounds():
     out = {"time": np.array([1.0, 2.0, 40.0]), "tracking_id": np.array([1, 2, 3]),
            "mass": np.array([10.0, 10.0, 5.0])}

@@ -15,9 +15,10 @@ const EVENTS_KEEP = 5000;
 const EVENTS_SHOWN = 200;
 const ALARMS_SHOWN = 50;
 const STALE_MS = 5000;        // a value older than this is marked
-// The feed prediction is the stockpile's slowest answer (30 predictions; a ROM
-// pile of 1,500 t took 2.9 s on a loaded machine), and the stockpile answers one
-// request at a time: it is read after the other values, with its own time-out,
+// The feed prediction is the stockpile's slowest answer (a forecast of the flow;
+// 40 ms for a ROM pile of 1,500 t and a 30 s horizon with both cores busy, about
+// 15x that for 600 s), and the stockpile answers one request at a time between its
+// exchange cycles: it is read after the other values, with its own time-out,
 // at most FEED_SHARE of the time (a feed that took 1 s is read again 5 s later;
 // a fast one every poll), and a slow or failed one only ages the feed shown.
 const FEED_SHARE = 0.2;

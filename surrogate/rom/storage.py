@@ -190,7 +190,7 @@ import numba
 import numpy as np
 
 from cosim.errors import ValidationError, check_finite_range
-from cosim.storage import StorageModel, check_discharge_rate
+from cosim.storage import StorageModel, budget_shares, check_discharge_rate
 from surrogate.rom import doe
 from surrogate.rom.advect import advect, interpolate, write_positions
 from surrogate.rom.dispersion import disperse
@@ -803,10 +803,22 @@ class RomStorage(StorageModel):
         surface layer's particles still falling, are credited until
         rate * horizon (plus the current credit) is covered.
         """
+        return self.predict_each((horizon,), discharge_rate)[0]
+
+    def predict_each(self, horizons, discharge_rate: float) -> list:
+        """``predict`` for each of ``horizons`` [s], all read from one forecast run
+        to the longest (the order in which the particles reach the outlet), so a
+        profile of the feed costs one forecast rather than one per horizon."""
         if self.dem_storage is not None:
-            return self.dem_storage.predict(horizon, discharge_rate)
+            return self.dem_storage.predict_each(horizons, discharge_rate)
         rate = check_discharge_rate(discharge_rate)
-        horizon = float(check_finite_range("horizon", horizon, 0.0, unit="s"))
+        horizons = [float(check_finite_range("horizon", h, 0.0, unit="s")) for h in horizons]
+        ids, masses = self._leaving_order(max(horizons, default=0.0), rate)
+        return [budget_shares(ids, masses, self._credit_kg + rate * h) for h in horizons]
+
+    def _leaving_order(self, horizon: float, rate: float):
+        """``(ids, mass_kg)`` of the held particles in the order the forecast of
+        ``horizon`` [s] at ``rate`` [kg/s] has them leave (``predict``)."""
         position, mass, index = self._pos.copy(), self._mass.copy(), np.arange(self._ids.size)
         # no column has drained before the first particle arrives
         credit, taken_all = self._credit_kg, []
@@ -839,10 +851,7 @@ class RomStorage(StorageModel):
         free = self.surface_dem
         if free is not None and len(free):  # the surface layer comes last: it has yet to land
             ids, masses = np.concatenate((ids, free.ids)), np.concatenate((masses, free.mass))
-        budget = self._credit_kg + rate * horizon
-        share = np.clip(budget - (np.cumsum(masses) - masses), 0.0, masses)
-        keep = share > 0
-        return ids[keep], share[keep]
+        return ids, masses
 
     def fields(self) -> dict[str, np.ndarray]:
         """Fields on the model grid: ``mass`` [kg/cell], ``velocity`` [m/s] (ny, nx, 2)
