@@ -32,6 +32,7 @@ Units: SI (kg, m, s, kg/s); grade and hardness dimensionless.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from cosim.errors import ValidationError, check_finite_range
@@ -86,15 +87,37 @@ def display(storage, discharge_rate: float, radius: float):
                                      discharge_rate, radius))
 
 
-def _weighted_mean(weights: np.ndarray, values: np.ndarray):
-    """Mean of ``values`` (N,) or (N, k) weighted by ``weights`` (N,); NaN when the
-    weights sum to 0. Numpy's pairwise sums, not BLAS: the same result every run."""
+def _weighted_mean(weights: np.ndarray, values: np.ndarray) -> float:
+    """Mean of ``values`` (N,) weighted by ``weights`` (N,); NaN when the weights
+    sum to 0. Numpy's pairwise sums, not BLAS: the same result every run."""
     total = float(weights.sum())
     if not total > 0:
-        return float("nan") if values.ndim == 1 else np.full(values.shape[1], np.nan)
-    if values.ndim == 1:
-        return float((weights * values).sum() / total)
-    return (weights[:, None] * values).sum(axis=0) / total
+        return float("nan")
+    return float((weights * values).sum() / total)
+
+
+def _mean_size_distribution(weights: np.ndarray, f: np.ndarray, slots: np.ndarray):
+    """The size distribution (16,) of the particles at ``slots`` of the store's
+    fractions ``f`` (N, 16), weighted by ``weights`` (one per slot); NaN when the
+    weights sum to 0."""
+    total = float(weights.sum())
+    if not total > 0:
+        return np.full(f.shape[1], np.nan)
+    return _weighted_row_sum(np.ascontiguousarray(weights, dtype=np.float64), f,
+                             np.ascontiguousarray(slots, dtype=np.int64)) / total
+
+
+@numba.njit(cache=True)
+def _weighted_row_sum(weights, values, rows):
+    # rows added one after another, as numpy sums an (N, k) array over axis 0 (the
+    # same result to the bit), without its (N, k) temporaries: 3.5 ms a call on a
+    # 19,000-particle pile, every step, against 0.13 ms
+    out = np.zeros(values.shape[1])
+    for k in range(rows.size):
+        row = rows[k]
+        for j in range(values.shape[1]):
+            out[j] += weights[k] * values[row, j]
+    return out
 
 
 def totals(storage, *, time: float, discharge_rate: float,
@@ -105,7 +128,7 @@ def totals(storage, *, time: float, discharge_rate: float,
     store = storage.particles
     slots = held_slots(storage)
     mass = store.mass[slots]
-    f = _weighted_mean(mass, store.f[slots])
+    f = _mean_size_distribution(mass, store.f, slots)
     return {"time_s": float(time), "held_mass_kg": float(mass.sum()),
             "grade": _weighted_mean(mass, store.grade[slots]),
             "hardness": _weighted_mean(mass, store.hardness[slots]),
@@ -223,7 +246,8 @@ def _feed_summary(store, horizon_s: float, ids: np.ndarray, share: np.ndarray) -
     mass = float(share.sum())
     grade = _weighted_mean(share, store.grade[slots])
     hardness = _weighted_mean(share, store.hardness[slots])
-    d80 = float(d_passing(_weighted_mean(share, store.f[slots]), 0.8)) if mass > 0 else np.nan
+    d80 = float(d_passing(_mean_size_distribution(share, store.f, slots), 0.8)) \
+        if mass > 0 else np.nan
     sources, which = np.unique(origins(store, slots), return_inverse=True)
     by_origin = np.bincount(which.ravel(), weights=share, minlength=sources.size)
     return {"horizon_s": horizon_s, "mass_kg": mass, "grade": grade, "hardness": hardness,
