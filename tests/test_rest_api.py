@@ -198,6 +198,21 @@ def test_totals_are_the_mass_weighted_averages(served):
     assert body["time_s"] == asset.time
 
 
+def test_the_size_distribution_is_summed_as_numpy_sums_rows():
+    """The pile's mean size distribution (one numba pass over the held slots) has
+    the bits of numpy's sum over axis 0 of the weighted rows, the form it replaced,
+    so the totals and history rows did not change."""
+    from cosim.stockpile_view import _mean_size_distribution
+
+    rng = np.random.default_rng(5)
+    fractions = rng.dirichlet(np.ones(16), 3000)
+    slots = np.sort(rng.choice(3000, 2000, replace=False))
+    weights = rng.uniform(12.0, 160.0, slots.size)
+    expected = (weights[:, None] * fractions[slots]).sum(axis=0) / weights.sum()
+    np.testing.assert_array_equal(_mean_size_distribution(weights, fractions, slots), expected)
+    assert np.isnan(_mean_size_distribution(np.zeros(0), fractions, slots[:0])).all()
+
+
 def test_history_since(served):
     asset, base, _ = served
     status, everything = get(base, "/history")
