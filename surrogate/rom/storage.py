@@ -222,9 +222,9 @@ LOOSE_MODEL = Path(__file__).parent / "data" / "paper_rom_loose.npz"
 """The registered fit (``minetwin rom train --registration height``) under the loose
 packing (``surface.settle_loose``, void gap 0.3 m), chosen on the three validation
 scenes by its largest excess over a scene's DEM noise floor (``--select-by
-floor-excess``) among fits whose bulk rests on its base (the regenerating command in
-its ``provenance``; surrogate/rom/README.md, "Loose packing and three validation
-scenes")."""
+floor-excess``, three DEM replicas per scene) among fits whose bulk rests on its base
+(the regenerating command in its ``provenance``; surrogate/rom/README.md, "Loose
+packing and three validation scenes" and "A third replica per validation scene")."""
 
 DEFAULT_MODEL = LOOSE_MODEL
 """The ROM a stockpile runs when no model file is named: of the shipped files, the one
