@@ -1,6 +1,6 @@
-"""The paper-scale ROMs that ship with the package: surrogate/rom/data/paper_rom.npz
-(the fixed grid, the default) and paper_rom_registered.npz (the registered fit
-chosen on the validation scene, an option).
+"""The paper-scale ROMs that ship with the package: surrogate/rom/data/paper_rom_loose.npz
+(the registered fit under the loose packing, the default), paper_rom.npz (the fixed
+grid) and paper_rom_registered.npz (the registered fit without packing, an option).
 
 Its header's provenance names the committed paper design it was trained on (the
 SHA-256 of the very files in the repository), the design's runs and seeds, the
