@@ -528,9 +528,10 @@ class StockpileClient:
 
     def _held_mass_and_grade(self) -> tuple[float, float]:
         """Held mass [kg] and its mass-weighted grade (0 when empty), as
-        ``asset.totals()`` gives them, without the rest of the totals: their
-        size-distribution mean cost 20 ms per cycle on a 12,000-particle pile
-        (measured), this 0.3 ms."""
+        ``asset.totals()`` gives them, without the rest of the totals (D80, count):
+        0.06 ms against 0.23 ms every cycle on a 19,000-particle pile (measured; the
+        totals took 20 ms on 12,000 particles before their size distribution was
+        summed in one pass)."""
         storage = self.asset.storage
         slots = storage.particles.owned_by(storage.owner)
         mass = storage.particles.mass[slots]

@@ -15,8 +15,8 @@ Two parts:
     ``discharge_rate``, ``totals()``, ``history(since)``, ``fields(nx, ny)``,
     ``particle_table(limit, offset)``, ``predicted_feed(horizon_s)``,
     ``predicted_feeds(horizons_s)``, ``events(since)``, ``layout`` and
-    ``origin_names()``. The owner of the
-    storage calls ``record()`` after each step to extend the time series;
+    ``origin_names()``. The owner of the storage calls ``record()`` after each
+    step to extend the time series;
     ``record`` also compares the particles held with the previous call's to
     find the lots in and out (``surrogate.lots``) and the actual discharge
     rate (mass that left over the trailing 30 s, ``surrogate.lots.DischargeRate``).
@@ -244,20 +244,19 @@ def _query_number(request, field, default, low, high, *, integer=False, low_open
 
 
 # ------------------------------------------------------------------ the server
-def create_app(asset, lock=None, exchange_idle=None,
-               exchange_wait_s: float = EXCHANGE_WAIT_S) -> web.Application:
+def create_app(asset, lock=None, exchange_idle=None) -> web.Application:
     """aiohttp application serving ``asset`` read-only.
 
     ``asset`` has the stockpile protocol (see ``StorageView``). ``lock`` (a
     ``threading.Lock``) is held while reading the asset when the simulation
     runs in another thread (``serve_in_thread``). ``exchange_idle`` (an
     ``asyncio.Event`` of the same loop, set between the owner's exchange cycles)
-    holds each request until it is set, at most ``exchange_wait_s`` [s]: a
-    request answered inside a cycle would stretch it (the stockpile client's lag).
+    holds each request until it is set, at most ``EXCHANGE_WAIT_S``: a request
+    answered inside a cycle would stretch it (the stockpile client's lag).
     """
     middlewares = [_errors_as_json]
     if exchange_idle is not None:
-        middlewares.append(_between_cycles(exchange_idle, exchange_wait_s))
+        middlewares.append(_between_cycles(exchange_idle))
     app = web.Application(middlewares=middlewares)
 
     def read(method, *args):
@@ -334,9 +333,9 @@ def create_app(asset, lock=None, exchange_idle=None,
 def _feed_with_profile(asset, horizon: float) -> tuple[dict, dict]:
     """The asset's predicted feed for ``horizon`` [s], and per interval of
     horizon / FEED_PROFILE_INTERVALS the mass [kg], grade and hardness
-    predicted to leave in it (one forecast read at every interval's end), and its mass [kg] from each origin
-    (``origins``: the source indices; ``origin_mass_kg``: one row per origin),
-    all differences of the cumulative predictions."""
+    predicted to leave in it, and its mass [kg] from each origin (``origins``: the
+    source indices; ``origin_mass_kg``: one row per origin), all differences of the
+    cumulative predictions, which are one forecast read at every interval's end."""
     ends = np.linspace(0.0, horizon, FEED_PROFILE_INTERVALS + 1)[1:]
     cumulative = asset.predicted_feeds([float(h) for h in ends])
     by_origin = [feed.pop("mass_by_origin") for feed in cumulative]
@@ -383,15 +382,15 @@ async def _errors_as_json(request, handler):
                                  headers=allow)
 
 
-def _between_cycles(exchange_idle: asyncio.Event, wait_s: float):
+def _between_cycles(exchange_idle: asyncio.Event):
     """Middleware: the handler runs once ``exchange_idle`` is set (a handler reads
     the asset without yielding, so no cycle starts before it has answered), or
-    after ``wait_s`` [s] anyway, so that back-to-back cycles (catching up,
+    after ``EXCHANGE_WAIT_S`` anyway, so that back-to-back cycles (catching up,
     lockstep) never starve a reader."""
     @web.middleware
     async def after_the_cycle(request, handler):
         loop = asyncio.get_running_loop()
-        deadline = loop.time() + wait_s
+        deadline = loop.time() + EXCHANGE_WAIT_S
         # woken when the cycle ends, a request may find the next already begun
         while not exchange_idle.is_set() and (left := deadline - loop.time()) > 0:
             try:

@@ -550,7 +550,7 @@ def test_api_conforms_to_its_openapi_document(case, stockpile_url):
 def test_a_request_waits_for_the_exchange_cycle_to_end():
     """With ``exchange_idle`` (the stockpile client's), a request made during an
     exchange cycle is answered only after it, so reading the pile never stretches
-    a cycle; with no cycle ending, it is answered after ``exchange_wait_s`` anyway."""
+    a cycle; with no cycle ending, it is answered after ``EXCHANGE_WAIT_S`` anyway."""
     import asyncio
 
     import aiohttp
