@@ -43,6 +43,31 @@ def test_a_falling_particle_follows_the_closed_form_and_joins_after_its_impact()
     assert radius - 0.01 <= position[0, 1] <= radius + rebound + 0.01
 
 
+def test_a_column_piled_high_beside_the_stream_does_not_take_the_fall_out_of_closed_form():
+    """The bulk's heights count the mass in each packing column, so a column where the
+    flow converged stands far above the pile (in the paper-scale mine, hundreds of metres
+    over the outlet beside the inlet). A particle falling from the inlet cannot reach it:
+    it stays in closed form down to the bed under the stream. One that has hit
+    something and moves sideways is checked against the whole bed."""
+    width = 0.5
+    column = np.array([[5.25, 1.0]])  # one column, 4 m from the inlet's stream
+    column_mass = np.array([1600.0 * width * 40.0])  # 40 m of bulk by its mass
+    assert surface_heights(CONTAINER, width, column, column_mass).max() == pytest.approx(40.0)
+    surface = SurfaceDem(CONFIG, CONTAINER, impact_time=0.05)
+    start = surface.add(np.array([7], np.uint64), np.array([100.0]))[0]
+    assert start[1] < 40.0
+    v0 = CONFIG.inlet_velocity
+    for step in range(1, 4):
+        surface.advance(0.1, width, column, column_mass)
+        t = 0.1 * step
+        assert surface.pos[0, 1] == pytest.approx(start[1] - v0 * t - 0.5 * G * t ** 2,
+                                                  abs=1e-9)
+    bed, bed_radius = surface.boundary(width, column, column_mass)
+    surface.vel[0, 0] = 0.1
+    assert surface._entry_heights(bed, bed_radius)[0] == pytest.approx(
+        (bed[:, 1] + bed_radius).max() + CONFIG.diameter_max)
+
+
 def test_the_floor_bounce_keeps_the_dems_restitution_at_the_surface_step():
     """Closing speed out/in at the floor, resolved at t_c / 5 (the surface DEM's
     step, the DEM's own): its restitution within 3 %."""

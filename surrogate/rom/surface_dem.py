@@ -16,7 +16,10 @@ Model:
   velocity; they are released across the inlet width (``add``).
 - Above the pile they touch nothing (the inlet releases them a row apart
   at one speed), so they fly ballistically, computed in closed form, until
-  they are two particle radii above the bed (``_fall``).
+  they are two particle radii above the bed (``_fall``): for a particle
+  still falling straight down from the inlet, above the bed under the
+  inlet's stream (a column of the bulk piled high beside it is not in its
+  way); for one that has hit something, above the whole bed.
 - The bulk is the bed they land on: fixed disks (infinite mass, at rest)
   laid along the bulk's surface profile for one call of ``advance``
   (``SurfaceDem.boundary``); the floor and the container's side walls are
@@ -342,10 +345,25 @@ class SurfaceDem:
         bed = np.column_stack((np.interp(along, arc, x), np.interp(along, arc, y) - radius))
         return bed, np.full(along.size, radius)
 
-    def _fall(self, dt: float, steps: int, entry_height: float) -> np.ndarray:
-        """Move the particles above ``entry_height`` [m] ballistically (they touch
-        nothing up there: the inlet releases them a row apart at one speed) up
-        to the step at which they reach it; returns that step per particle
+    def _entry_heights(self, fixed_pos: np.ndarray, fixed_radius: np.ndarray) -> np.ndarray:
+        """Per particle, the height [m] above which it touches nothing: two largest
+        radii over the bed's top, the top of the whole bed, or, for a particle
+        still falling straight down from the inlet (no sideways speed, no contact
+        yet), the top of the bed disks it can reach across the inlet's width."""
+        r_max = 0.5 * self.config.diameter_max
+        if fixed_radius.size == 0:
+            return np.full(self.ids.size, self.container.floor + 2.0 * r_max)
+        top = fixed_pos[:, 1] + fixed_radius
+        reach = 0.5 * self.config.inlet_width + r_max + fixed_radius
+        under_stream = np.abs(fixed_pos[:, 0] - self.container.inlet_x) <= reach
+        stream_top = top[under_stream].max() if under_stream.any() else self.container.floor
+        falling = (self.vel[:, 0] == 0.0) & (self.impact_age == 0.0)
+        return np.where(falling, stream_top, top.max()) + 2.0 * r_max
+
+    def _fall(self, dt: float, steps: int, entry_height: np.ndarray) -> np.ndarray:
+        """Move the particles above their ``entry_height`` [m] ballistically (they
+        touch nothing up there: the inlet releases them a row apart at one speed)
+        up to the step at which they reach it; returns that step per particle
         (``steps`` if they stay above it for the whole call)."""
         g = GRAVITY
         height = self.pos[:, 1] - entry_height
@@ -377,9 +395,7 @@ class SurfaceDem:
         r_max = 0.5 * self.config.diameter_max
         steps = int(np.ceil(seconds / self.dt - 1e-9))
         dt = seconds / steps
-        first = self._fall(dt, steps,
-                           float((fixed_pos[:, 1] + fixed_radius).max() if fixed_radius.size
-                                 else self.container.floor) + 2.0 * r_max)
+        first = self._fall(dt, steps, self._entry_heights(fixed_pos, fixed_radius))
         if fixed_pos.shape[0]:  # the DEM's cell sort; it may widen the cells, never narrow them
             x0, y0, cell, nx, ny, start, members = kernels._cell_grid(fixed_pos, 4.0 * r_max)
         else:
