@@ -102,9 +102,12 @@ def task_key(task: Task, version: str = "") -> str:
 
 
 @functools.lru_cache(maxsize=1)
+@functools.cache
 def code_version() -> str:
     """The source tree's git commit (``+dirty`` with uncommitted changes) or
-    ``unknown``; read once per process, in the worker that runs a task."""
+    ``unknown``, read on the first call in a process and kept: a process runs
+    the code it imported, not what is edited in the tree later (a forked
+    worker inherits the value read before the fork)."""
     root = Path(__file__).resolve().parents[1]
     try:
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True,

@@ -643,6 +643,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     from surrogate.rom.validation import folders, tracking_scores
 
     storage_options = check_storage_options(storage_options)
+    batch.code_version()  # the version trained with, read before the minutes of training
     if rest_fraction is not None:
         rest_fraction = float(check_finite_range("rest_fraction", rest_fraction, 0.0, 1.0))
     if dispersivity is not None:
