@@ -159,3 +159,21 @@ def test_a_local_pool_works_after_this_process_ran_numbas_parallel_threads(tmp_p
                           timeout=300, cwd=Path(__file__).resolve().parents[1])
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.split(" ", 1)[1].strip() == str(["done"] * 4), done.stdout
+
+
+def test_the_code_version_is_read_once_per_process(monkeypatch):
+    """A process runs the code it imported: the version is read from git on the first
+    call and kept, so a record written minutes later names the same commit even if the
+    tree was edited meanwhile."""
+    calls = []
+    real_run = subprocess.run
+
+    def counting_run(*args, **kwargs):
+        calls.append(args[0])
+        return real_run(*args, **kwargs)
+
+    batch.code_version.cache_clear()
+    monkeypatch.setattr(batch.subprocess, "run", counting_run)
+    first = batch.code_version()
+    assert batch.code_version() == first and batch.code_version() == first
+    assert [command[:2] for command in calls] == [["git", "rev-parse"], ["git", "status"]]
