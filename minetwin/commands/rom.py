@@ -121,6 +121,19 @@ def register(subparsers) -> None:
                           help="run the ROM with seeds 0 .. N-1 on every scene and score "
                                "the mean over them and the DEM replicas (default 1: seed 0; "
                                "1-100; its surface layer and feeder draw random numbers)")
+    evaluate.add_argument("--mine", nargs="?", type=float, const=7200.0, default=None,
+                          metavar="S",
+                          help="also time the paper-scale mine simulator (examples/"
+                               "paper_scale.toml) with this ROM as its stockpile for S "
+                               "simulated seconds (default 7200; target: 100x real time on "
+                               "one core by CPU time); the result goes to summary.json 'mine'")
+    evaluate.add_argument("--integration-test", type=float, default=None, metavar="S",
+                          help="also run the paper's integration test (mock 800xA over OPC "
+                               "UA, this ROM as the stockpile client, the monitor) at speed "
+                               "1 for S seconds into OUT/integration_test (targets: step "
+                               "and lag p99 below the exchange cycle, nothing lost or "
+                               "duplicated); the result goes to summary.json "
+                               "'integration_test'")
     _model_options(evaluate)
     evaluate.set_defaults(handler=run_evaluate)
     design = sub.add_parser(
@@ -239,6 +252,7 @@ def run_evaluate(args) -> int:
     from pathlib import Path
 
     from cosim.errors import ValidationError
+    from minetwin import acceptance
     from surrogate.rom import heldout_layout
     from surrogate.rom.evaluate import (build_data, check_rom_seeds, evaluate, train,
                                         write_summary)
@@ -246,6 +260,13 @@ def run_evaluate(args) -> int:
     from surrogate.rom.storage import RomStorage
 
     check_rom_seeds(args.rom_seeds)  # before a design is built or laid out
+    if args.quick and (args.mine is not None or args.integration_test is not None):
+        raise ValidationError("--mine/--integration-test", "with --model and --data (a "
+                              "paper-scale ROM), not --quick")
+    for flag, seconds, limit in (("--mine", args.mine, 1e6),
+                                 ("--integration-test", args.integration_test, 86400.0)):
+        if seconds is not None and not 0 < seconds <= limit:
+            raise ValidationError(flag, f"in (0, {limit:g}] s", f"got {seconds!r}")
     rom_options = {"surface": args.surface,
                    **{k: getattr(args, k)
                       for k in ("transport", "packing", "velocity_model", "packing_density",
@@ -283,6 +304,10 @@ def run_evaluate(args) -> int:
     # the file scored, so that `fidelity calibrate` ties the ROM card to it
     model_file = Path(args.model) if args.model else data / "rom_model.npz"
     summary["model_sha256"] = hashlib.sha256(model_file.read_bytes()).hexdigest()
+    acceptance.run_from_command_line(summary, model_file, args.out or data,
+                                     mine_until=args.mine,
+                                     integration_duration=args.integration_test,
+                                     rom_options=rom_options, progress=_progress)
     path = write_summary(summary, args.out or data)
     shown = {k: summary[k] for k in ("tracking_error", "tracking_error_dem_noise_floor",
                                      "velocity_field_rel_error",
@@ -290,6 +315,7 @@ def run_evaluate(args) -> int:
                                      "wall_s_per_simulated_s",
                                      "speedup_vs_dem", "grade_error", "hardness_error",
                                      "feed_prediction_error", "targets")}
+    shown.update({k: summary[k] for k in ("mine", "integration_test") if k in summary})
     shown["rom_seeds"] = summary["rom_seeds"]
     shown["scenarios"] = {name: {k: s[k] for k in ("tracking_error",
                                                     "tracking_error_spread", "dem_replicas",

@@ -1,0 +1,133 @@
+"""The paper-scale checks beside the held-out scenes that ``minetwin rom evaluate``
+adds to its summary.json (``--mine``, ``--integration-test S``).
+
+- ``mine_speed``: the paper's mine simulator (``examples/paper_scale.toml``: two
+  sources, the haul truck, crusher and mill FMUs, two belts, a 1.9 kt stockpile
+  of about 19,000 pseudo-particles) with the evaluated ROM as its stockpile,
+  timed as ``benchmarks/bench_mine.py`` times it (5 s untimed first, so the
+  kernels compile outside the timing; events recorded to SQLite). Target: at
+  least ``MINE_REALTIME_TARGET`` x real time on one core, by the process's CPU
+  time (the fairer figure on a shared machine; wall time is reported beside it).
+- ``integration_test``: the paper's integration test (``minetwin
+  integration-test``: mock 800xA server, the ROM stockpile as its OPC UA client,
+  the monitor) at speed 1 with the evaluated ROM. Targets: step-time p99 and lag
+  p99 each below the exchange cycle, no tracking id lost or duplicated, mass
+  balance below ``MASS_BALANCE_LIMIT``; the report names any ROM input outside
+  its training ranges at the end.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+from cosim.errors import ValidationError, check_finite_range
+
+ROOT = Path(__file__).resolve().parents[1]
+
+MINE_SCENARIO = ROOT / "examples" / "paper_scale.toml"
+"""The paper's mine at full scale."""
+
+MINE_REALTIME_TARGET = 100.0
+"""Simulated seconds per CPU second the mine must reach with the ROM stockpile."""
+
+MASS_BALANCE_LIMIT = 1e-9
+"""Largest relative mass-balance error of the integration test."""
+
+
+def mine_speed(model_file, *, until: float = 7200.0, rom_options: dict | None = None) -> dict:
+    """Run the paper-scale mine for ``until`` [s] (default 7,200) with the ROM in
+    ``model_file`` (and ``rom_options``, ``RomStorage`` keywords) as its stockpile;
+    the real-time factors, particles, mass balance, the ROM's warnings and whether
+    the target is met."""
+    from cosim.scenario import load, run_scenario
+
+    until = float(check_finite_range("mine_until", until, 0.0, 1e6, low_open=True, unit="s"))
+    config = load(MINE_SCENARIO)
+    stockpile = config["assets"]["stockpile"]
+    stockpile["model"] = "rom"
+    stockpile["options"] = {**stockpile.get("options", {}), **(rom_options or {}),
+                            "model": str(model_file)}
+    with tempfile.TemporaryDirectory() as out, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run_scenario(config, out, until=5.0)
+        caught.clear()
+        load_average = os.getloadavg()[0]
+        started, cpu_started = time.perf_counter(), time.process_time()
+        simulation, summary = run_scenario(config, out, until=until)
+        wall = time.perf_counter() - started
+        cpu = time.process_time() - cpu_started
+    held = simulation.plant.particles.owner == simulation.assets["stockpile"].owner
+    factor_cpu = until / cpu
+    return {"scenario": str(MINE_SCENARIO.relative_to(ROOT)), "simulated_s": until,
+            "wall_s": wall, "cpu_s": cpu, "realtime_factor": until / wall,
+            "realtime_factor_cpu": factor_cpu, "load_average_at_start": load_average,
+            "particles_created": summary["particles_created"],
+            "stockpile_particles_end": int(held.sum()),
+            "mass_balance_rel_error": summary["mass_balance_rel_error"],
+            "warnings": sorted({f"{w.category.__name__}: {w.message}" for w in caught}),
+            "target_realtime_factor_cpu": MINE_REALTIME_TARGET,
+            "realtime_factor_at_least_100": bool(factor_cpu >= MINE_REALTIME_TARGET)}
+
+
+def integration_test(model_file, out, *, duration: float = 60.0,
+                     rom_options: dict | None = None) -> dict:
+    """Run ``minetwin integration-test`` at speed 1 for ``duration`` [s] (default 60)
+    with the ROM in ``model_file`` into ``out``; its report's key figures and
+    whether it ran in real time without loss."""
+    from minetwin.harness import minetwin_command
+
+    duration = float(check_finite_range("integration_test", duration, 0.0, 86400.0,
+                                        low_open=True, unit="s"))
+    out = Path(out)
+    options = {**(rom_options or {}), "model": str(model_file)}
+    command = minetwin_command() + ["integration-test", "--duration", repr(duration),
+                                    "--speed", "1", "--out", str(out)]
+    for key, value in options.items():
+        command += ["--option", f"{key}={value}"]
+    # its progress goes to this process's stderr; its report is read from the file
+    finished = subprocess.run(command, stdout=subprocess.DEVNULL, cwd=ROOT)
+    report_path = out / "report.json"
+    if not report_path.exists():
+        raise ValidationError("integration_test", "a run that writes its report",
+                              f"minetwin integration-test exited {finished.returncode} "
+                              f"without {report_path}; see its logs in {out}")
+    report = json.loads(report_path.read_text())
+    cycle = report["exchange_cycle_s"]
+    keys = ("duration_s", "speed", "stockpile_model", "tracking_ids_lost",
+            "tracking_ids_duplicated", "mass_balance_rel_error", "lag_p99_s", "max_lag_s",
+            "step_time_p99_ms", "step_time_mean_ms", "exchange_cycles", "exchange_cycle_s",
+            "out_of_training_range_at_end", "monitor_ok")
+    result = {key: report[key] for key in keys}
+    result["report"] = str(report_path)
+    result["real_time_without_loss"] = bool(
+        report["step_time_p99_ms"] / 1e3 < cycle and report["lag_p99_s"] < cycle
+        and report["tracking_ids_lost"] == 0 and report["tracking_ids_duplicated"] == 0
+        and report["mass_balance_rel_error"] < MASS_BALANCE_LIMIT)
+    return result
+
+
+def run_from_command_line(summary: dict, model_file, out, *, mine_until: float | None,
+                          integration_duration: float | None, rom_options: dict,
+                          progress=None) -> None:
+    """Add the checks asked for to ``summary`` (``mine``, ``integration_test`` and
+    their ``targets``), in place."""
+    say = progress or (lambda message: None)
+    if mine_until is not None:
+        say(f"paper-scale mine with this ROM for {mine_until:.0f} s")
+        summary["mine"] = mine_speed(model_file, until=mine_until, rom_options=rom_options)
+        summary["targets"]["mine_realtime_factor_at_least_100"] = \
+            summary["mine"]["realtime_factor_at_least_100"]
+        say(f"mine: {summary['mine']['realtime_factor_cpu']:.1f}x real time by CPU time")
+    if integration_duration is not None:
+        say(f"integration test at speed 1 for {integration_duration:.0f} s")
+        summary["integration_test"] = integration_test(
+            model_file, Path(out) / "integration_test", duration=integration_duration,
+            rom_options=rom_options)
+        summary["targets"]["integration_test_real_time_without_loss"] = \
+            summary["integration_test"]["real_time_without_loss"]
