@@ -116,7 +116,8 @@ def run_from_command_line(summary: dict, model_file, out, *, mine_until: float |
                           integration_duration: float | None, rom_options: dict,
                           progress=None) -> None:
     """Add the checks asked for to ``summary`` (``mine``, ``integration_test`` and
-    their ``targets``), in place."""
+    their ``targets``), in place; the integration test writes its report and logs
+    into ``out``/integration_test."""
     say = progress or (lambda message: None)
     if mine_until is not None:
         say(f"paper-scale mine with this ROM for {mine_until:.0f} s")
@@ -129,5 +130,7 @@ def run_from_command_line(summary: dict, model_file, out, *, mine_until: float |
         summary["integration_test"] = integration_test(
             model_file, Path(out) / "integration_test", duration=integration_duration,
             rom_options=rom_options)
+        # beside summary.json, wherever the folder is moved
+        summary["integration_test"]["report"] = "integration_test/report.json"
         summary["targets"]["integration_test_real_time_without_loss"] = \
             summary["integration_test"]["real_time_without_loss"]

@@ -66,10 +66,13 @@ def register(subparsers) -> None:
     evaluate = sub.add_parser(
         "evaluate", help="score a ROM on the held-out DEM scenario; writes summary.json",
         description="Score FIFO, mixing and the ROM against the DEM on every held-out scenario "
-                    "(200 kg/s and the paper's 1.2 and 1.5 t/s) and print/write summary.json: "
-                    "per scenario under 'scenarios', their means (wall times: totals) at the "
-                    "top level. With --quick: build a small DEM design, train and evaluate end "
-                    "to end (a few minutes on 2 cores).")
+                    "of --data (surrogate/rom/data/paper_heldout: 1.2 and 2 t/s in and out, "
+                    "1.5 t/s out with 0.7 t/s in, from a 1.47 kt pile) and print/write "
+                    "summary.json: per scenario under 'scenarios', their means (wall times: "
+                    "totals) at the top level; --mine and --integration-test add the "
+                    "paper-scale mine and the integration test over OPC UA. With --quick: "
+                    "build a small DEM design, train and evaluate end to end (a few minutes on "
+                    "2 cores).")
     evaluate.add_argument("--model", help="model file (from `minetwin rom train`)")
     evaluate.add_argument("--data", help="DOE directory with held-out runs, or the data folder "
                                          "of an exported held-out design (e.g. "
