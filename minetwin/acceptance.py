@@ -59,7 +59,7 @@ def mine_speed(model_file, *, until: float = 7200.0, rom_options: dict | None = 
         caught.clear()
         load_average = os.getloadavg()[0]
         started, cpu_started = time.perf_counter(), time.process_time()
-        simulation, summary = run_scenario(config, out, until=until)
+        simulation, summary = run_scenario(config, out, until=until, progress="mine")
         wall = time.perf_counter() - started
         cpu = time.process_time() - cpu_started
     held = simulation.plant.particles.owner == simulation.assets["stockpile"].owner
