@@ -102,7 +102,6 @@ def task_key(task: Task, version: str = "") -> str:
 
 
 @functools.lru_cache(maxsize=1)
-@functools.cache
 def code_version() -> str:
     """The source tree's git commit (``+dirty`` with uncommitted changes) or
     ``unknown``, read on the first call in a process and kept: a process runs
