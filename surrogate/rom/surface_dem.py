@@ -347,9 +347,10 @@ class SurfaceDem:
 
     def _entry_heights(self, fixed_pos: np.ndarray, fixed_radius: np.ndarray) -> np.ndarray:
         """Per particle, the height [m] above which it touches nothing: two largest
-        radii over the bed's top, the top of the whole bed, or, for a particle
-        still falling straight down from the inlet (no sideways speed, no contact
-        yet), the top of the bed disks it can reach across the inlet's width."""
+        radii over the top of the bed disks it can reach. For a particle still
+        falling straight down from the inlet (no sideways speed, no contact yet)
+        those are the disks within its reach across the inlet's width; for any
+        other, the whole bed."""
         r_max = 0.5 * self.config.diameter_max
         if fixed_radius.size == 0:
             return np.full(self.ids.size, self.container.floor + 2.0 * r_max)
