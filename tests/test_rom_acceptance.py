@@ -72,3 +72,21 @@ def test_the_checks_are_refused_with_a_quick_design(tmp_path):
                             cwd=ROOT, capture_output=True, text=True)
     assert result.returncode == 2 and "--mine" in result.stderr, result.stderr
     assert not any(tmp_path.iterdir())  # refused before a design is built
+
+
+def test_a_check_that_cannot_run_is_recorded_and_the_scores_are_kept(tmp_path):
+    """A held-out evaluation takes minutes: a mine or integration test that fails
+    afterwards is recorded as its error, with its target not met, rather than raised."""
+    from minetwin.acceptance import run_from_command_line
+
+    summary = {"tracking_error": {"rom": 0.1}, "targets": {"speedup_at_least_100": True}}
+    missing = tmp_path / "no_model.npz"
+    errors = run_from_command_line(summary, missing, tmp_path, mine_until=10.0,
+                                   integration_duration=5.0, rom_options={})
+    assert [e.split(":")[0] for e in errors] == ["mine", "integration test"]
+    assert str(missing) in summary["mine"]["error"]
+    assert "integration-test exited 2" in summary["integration_test"]["error"]
+    assert summary["targets"] == {"speedup_at_least_100": True,
+                                  "mine_realtime_factor_at_least_100": False,
+                                  "integration_test_real_time_without_loss": False}
+    assert summary["tracking_error"] == {"rom": 0.1}

@@ -276,6 +276,8 @@ def run_evaluate(args) -> int:
                                 "rest_fraction", "landing_spread", "void_gap")
                       if getattr(args, k) is not None}}
     RomStorage(**rom_options)  # the storage checks its options, here rather than in a worker
+    if args.mine is not None and args.model:  # a mine that cannot run here: before the scoring
+        acceptance.mine_config(args.model, rom_options)
     if args.quick:
         if not args.out:
             raise ValidationError("--out", "a directory when --quick is given")
@@ -307,10 +309,10 @@ def run_evaluate(args) -> int:
     # the file scored, so that `fidelity calibrate` ties the ROM card to it
     model_file = Path(args.model) if args.model else data / "rom_model.npz"
     summary["model_sha256"] = hashlib.sha256(model_file.read_bytes()).hexdigest()
-    acceptance.run_from_command_line(summary, model_file, args.out or data,
-                                     mine_until=args.mine,
-                                     integration_duration=args.integration_test,
-                                     rom_options=rom_options, progress=_progress)
+    check_errors = acceptance.run_from_command_line(
+        summary, model_file, args.out or data, mine_until=args.mine,
+        integration_duration=args.integration_test, rom_options=rom_options,
+        progress=_progress)
     path = write_summary(summary, args.out or data)
     shown = {k: summary[k] for k in ("tracking_error", "tracking_error_dem_noise_floor",
                                      "velocity_field_rel_error",
@@ -330,6 +332,10 @@ def run_evaluate(args) -> int:
                           for name, s in summary["scenarios"].items()}
     print(jsonio.dumps(shown, indent=1))
     print(f"wrote {path}", file=sys.stderr)
+    for error in check_errors:
+        print(f"minetwin rom evaluate: {error}", file=sys.stderr)
+    if check_errors:
+        return 1
     rom = summary["tracking_error"]["rom"]
     if rom != rom:
         print("minetwin rom evaluate: the ROM run gave no outflow to score", file=sys.stderr)
