@@ -26,7 +26,7 @@ import time
 import warnings
 from pathlib import Path
 
-from cosim.errors import ValidationError, check_finite_range
+from cosim.errors import ValidationError
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -38,6 +38,20 @@ MINE_REALTIME_TARGET = 100.0
 
 MASS_BALANCE_LIMIT = 1e-9
 """Largest relative mass-balance error of the integration test."""
+
+MINE_UNTIL_MAX_S = 1e6
+"""Longest mine run [s of simulation] ``mine_speed`` takes."""
+
+INTEGRATION_TEST_MAX_S = 86400.0
+"""Longest integration test [s] ``integration_test`` takes (the command's own limit)."""
+
+
+def check_duration(field: str, seconds, limit: float) -> float:
+    """``seconds`` as a float if it lies in (0, ``limit``] s, else a ValidationError
+    naming ``field``."""
+    if not 0 < seconds <= limit:
+        raise ValidationError(field, f"in (0, {limit:g}] s", f"got {seconds!r}")
+    return float(seconds)
 
 
 def mine_config(model_file, rom_options: dict | None = None) -> dict:
@@ -60,7 +74,7 @@ def mine_speed(model_file, *, until: float = 7200.0, rom_options: dict | None = 
     the target is met."""
     from cosim.scenario import run_scenario
 
-    until = float(check_finite_range("mine_until", until, 0.0, 1e6, low_open=True, unit="s"))
+    until = check_duration("mine_until", until, MINE_UNTIL_MAX_S)
     config = mine_config(model_file, rom_options)
     with tempfile.TemporaryDirectory() as out, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -87,12 +101,11 @@ def mine_speed(model_file, *, until: float = 7200.0, rom_options: dict | None = 
 def integration_test(model_file, out, *, duration: float = 60.0,
                      rom_options: dict | None = None) -> dict:
     """Run ``minetwin integration-test`` at speed 1 for ``duration`` [s] (default 60)
-    with the ROM in ``model_file`` into ``out``; its report's key figures and
-    whether it ran in real time without loss."""
+    with the ROM in ``model_file`` into ``out`` (its report: ``out``/report.json);
+    the report's key figures and whether it ran in real time without loss."""
     from minetwin.harness import minetwin_command
 
-    duration = float(check_finite_range("integration_test", duration, 0.0, 86400.0,
-                                        low_open=True, unit="s"))
+    duration = check_duration("integration_test", duration, INTEGRATION_TEST_MAX_S)
     out = Path(out)
     options = {**(rom_options or {}), "model": str(model_file)}
     command = minetwin_command() + ["integration-test", "--duration", repr(duration),
@@ -113,7 +126,6 @@ def integration_test(model_file, out, *, duration: float = 60.0,
             "step_time_p99_ms", "step_time_mean_ms", "exchange_cycles", "exchange_cycle_s",
             "out_of_training_range_at_end", "monitor_ok")
     result = {key: report[key] for key in keys}
-    result["report"] = str(report_path)
     result["real_time_without_loss"] = bool(
         report["step_time_p99_ms"] / 1e3 < cycle and report["lag_p99_s"] < cycle
         and report["tracking_ids_lost"] == 0 and report["tracking_ids_duplicated"] == 0

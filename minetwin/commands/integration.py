@@ -67,6 +67,7 @@ def run(args) -> int:
     import time
     import urllib.request
 
+    from minetwin.acceptance import INTEGRATION_TEST_MAX_S, check_duration
     from minetwin.commands.stockpile import parse_model_options
     from cosim.errors import ValidationError
     from cosim.storage import storage_class
@@ -81,8 +82,7 @@ def run(args) -> int:
         prepare_state,
     )
 
-    if not 0 < args.duration <= 86400:
-        raise ValidationError("duration", "in (0, 86400] s", f"got {args.duration}")
+    check_duration("duration", args.duration, INTEGRATION_TEST_MAX_S)
     if not 0 < args.speed <= 1000:
         raise ValidationError("speed", "in (0, 1000]", f"got {args.speed}")
     storage_class(args.model, field="model")

@@ -266,10 +266,11 @@ def run_evaluate(args) -> int:
     if args.quick and (args.mine is not None or args.integration_test is not None):
         raise ValidationError("--mine/--integration-test", "with --model and --data (a "
                               "paper-scale ROM), not --quick")
-    for flag, seconds, limit in (("--mine", args.mine, 1e6),
-                                 ("--integration-test", args.integration_test, 86400.0)):
-        if seconds is not None and not 0 < seconds <= limit:
-            raise ValidationError(flag, f"in (0, {limit:g}] s", f"got {seconds!r}")
+    if args.mine is not None:
+        acceptance.check_duration("--mine", args.mine, acceptance.MINE_UNTIL_MAX_S)
+    if args.integration_test is not None:
+        acceptance.check_duration("--integration-test", args.integration_test,
+                                  acceptance.INTEGRATION_TEST_MAX_S)
     rom_options = {"surface": args.surface,
                    **{k: getattr(args, k)
                       for k in ("transport", "packing", "velocity_model", "packing_density",
