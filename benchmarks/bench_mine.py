@@ -26,7 +26,6 @@ import pstats
 import sqlite3
 import sys
 import tempfile
-import time
 import warnings
 from pathlib import Path
 
@@ -35,20 +34,18 @@ sys.path.insert(0, str(ROOT))
 
 from cosim import jsonio  # noqa: E402
 from cosim.scenario import build, load, run_scenario  # noqa: E402
+from minetwin.acceptance import timed_scenario  # noqa: E402
 
 SCENARIO = ROOT / "examples" / "paper_scale.toml"
 
 
 def timed_run(config: dict, model: str, until: float) -> dict:
-    with tempfile.TemporaryDirectory() as out, warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        started, cpu_started = time.perf_counter(), time.process_time()
-        simulation, summary = run_scenario(config, out, until=until, storage_model=model)
-        wall = time.perf_counter() - started
-        cpu = time.process_time() - cpu_started
+    with tempfile.TemporaryDirectory() as out:
+        simulation, summary, timing = timed_scenario(config, out, until, storage_model=model)
         with sqlite3.connect(Path(out) / "events.sqlite") as db:
             events = db.execute("SELECT COUNT(*) FROM events").fetchone()[0]
             rows = db.execute("SELECT COUNT(*) FROM event_particles").fetchone()[0]
+    wall, cpu = timing["wall_s"], timing["cpu_s"]
     stockpile = simulation.timeseries["stockpile.mass_kg"]
     return {
         "storage_model": model, "simulated_s": until, "wall_s": round(wall, 2),
@@ -56,11 +53,10 @@ def timed_run(config: dict, model: str, until: float) -> dict:
         "cpu_s": round(cpu, 2), "realtime_factor_cpu": round(until / cpu, 1),
         "particles_created": summary["particles_created"],
         "stockpile_mass_mean_t": round(float(stockpile.mean()) / 1e3, 1),
-        "stockpile_particles_end": int(
-            (simulation.plant.particles.owner == simulation.assets["stockpile"].owner).sum()),
+        "stockpile_particles_end": timing["stockpile_particles_end"],
         "events": events, "event_particle_rows": rows,
         "mass_balance_rel_error": summary["mass_balance_rel_error"],
-        "warnings": sorted({f"{w.category.__name__}: {w.message}" for w in caught}),
+        "warnings": timing["warnings"],
     }
 
 

@@ -68,6 +68,28 @@ def mine_config(model_file, rom_options: dict | None = None) -> dict:
     return config
 
 
+def timed_scenario(config: dict, out, until: float, *, storage_model: str | None = None,
+                   progress: bool | str = False):
+    """Run ``config`` into ``out`` for ``until`` [s] as ``cosim.scenario.run_scenario``
+    does (events to SQLite), timed; returns ``(simulation, summary, timing)`` with
+    timing's ``wall_s``, ``cpu_s`` (this process's CPU time), ``warnings`` (each
+    distinct one raised, as text) and ``stockpile_particles_end``."""
+    from cosim.scenario import run_scenario
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        started, cpu_started = time.perf_counter(), time.process_time()
+        simulation, summary = run_scenario(config, out, until=until,
+                                           storage_model=storage_model, progress=progress)
+        wall = time.perf_counter() - started
+        cpu = time.process_time() - cpu_started
+    held = simulation.plant.particles.owner == simulation.assets["stockpile"].owner
+    return simulation, summary, {
+        "wall_s": wall, "cpu_s": cpu,
+        "warnings": sorted({f"{w.category.__name__}: {w.message}" for w in caught}),
+        "stockpile_particles_end": int(held.sum())}
+
+
 def mine_speed(model_file, *, until: float = 7200.0, rom_options: dict | None = None) -> dict:
     """Run the paper-scale mine (``mine_config``) for ``until`` [s] (default 7,200);
     the real-time factors, particles, mass balance, the ROM's warnings and whether
@@ -76,24 +98,21 @@ def mine_speed(model_file, *, until: float = 7200.0, rom_options: dict | None = 
 
     until = check_duration("mine_until", until, MINE_UNTIL_MAX_S)
     config = mine_config(model_file, rom_options)
-    with tempfile.TemporaryDirectory() as out, warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        run_scenario(config, out, until=5.0)
-        caught.clear()
+    with tempfile.TemporaryDirectory() as out:
+        with warnings.catch_warnings():  # the untimed run's warnings are the timed run's
+            warnings.simplefilter("ignore")
+            run_scenario(config, out, until=5.0)
         load_average = os.getloadavg()[0]
-        started, cpu_started = time.perf_counter(), time.process_time()
-        simulation, summary = run_scenario(config, out, until=until, progress="mine")
-        wall = time.perf_counter() - started
-        cpu = time.process_time() - cpu_started
-    held = simulation.plant.particles.owner == simulation.assets["stockpile"].owner
-    factor_cpu = until / cpu
+        _, summary, timing = timed_scenario(config, out, until, progress="mine")
+    factor_cpu = until / timing["cpu_s"]
     return {"scenario": str(MINE_SCENARIO.relative_to(ROOT)), "simulated_s": until,
-            "wall_s": wall, "cpu_s": cpu, "realtime_factor": until / wall,
+            "wall_s": timing["wall_s"], "cpu_s": timing["cpu_s"],
+            "realtime_factor": until / timing["wall_s"],
             "realtime_factor_cpu": factor_cpu, "load_average_at_start": load_average,
             "particles_created": summary["particles_created"],
-            "stockpile_particles_end": int(held.sum()),
+            "stockpile_particles_end": timing["stockpile_particles_end"],
             "mass_balance_rel_error": summary["mass_balance_rel_error"],
-            "warnings": sorted({f"{w.category.__name__}: {w.message}" for w in caught}),
+            "warnings": timing["warnings"],
             "target_realtime_factor_cpu": MINE_REALTIME_TARGET,
             "realtime_factor_at_least_100": bool(factor_cpu >= MINE_REALTIME_TARGET)}
 
