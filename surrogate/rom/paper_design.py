@@ -464,6 +464,28 @@ def paper_validation_q2000_design() -> Design:
                   checkpoint_interval=20.0, keep_start_states=True)
 
 
+VALIDATION_Q2000_B_PILE = PileSpec("validation_b_1500t", 17_500, seed=4)
+"""The second 2 t/s validation scene's laid-out pile: as many disks as the held-out
+pile (about 1.5 kt) poured with another seed, so a pile of another shape."""
+
+VALIDATION_Q2000_B_SCENES = (("validation_b_q2000", 2000.0, 2000.0),)
+"""The second validation scene at 2 t/s in and out ``(name, discharge [kg/s], inflow
+[kg/s])``."""
+
+
+def paper_validation_q2000_b_design() -> Design:
+    """A fourth validation scene, 2 t/s in and out for 180 s on a pile of its own
+    (``VALIDATION_Q2000_B_PILE``), as ``VALIDATION_REPLICAS`` DEM replicas. With one
+    pile, fits that track the validation pile's 2 t/s scene alike can track another
+    pile's very differently (surrogate/rom/README.md, "A second pile at 2 t/s")."""
+    cfg = paper_config()
+    return Design("paper_validation_q2000_b", cfg, paper_grid(cfg), (VALIDATION_Q2000_B_PILE,),
+                  _heldout_runs(f"pile:{VALIDATION_Q2000_B_PILE.name}",
+                                VALIDATION_Q2000_B_SCENES, 180.0, first_seed=330,
+                                replicas=VALIDATION_REPLICAS),
+                  checkpoint_interval=20.0, keep_start_states=True)
+
+
 def reduced_heldout_design() -> Design:
     """``paper_heldout_design`` on a few hundred disks and seconds (for tests)."""
     cfg = paper_config()
@@ -480,6 +502,7 @@ DESIGNS = {"paper": paper_design, "reduced": reduced_design,
            "paper_validation": paper_validation_design,
            "paper_validation_drain": paper_validation_drain_design,
            "paper_validation_q2000": paper_validation_q2000_design,
+           "paper_validation_q2000_b": paper_validation_q2000_b_design,
            "paper_rock": paper_rock_design, "paper_rock_nonsmooth": paper_rock_nonsmooth_design,
            "paper_rock_inflow": paper_rock_inflow_design,
            "paper_rock_inflow_nonsmooth": paper_rock_inflow_nonsmooth_design}
