@@ -655,7 +655,7 @@ def test_only_refuses_a_run_the_design_does_not_have_by_name(tmp_path):
 
 
 @pytest.mark.parametrize("name", ["paper_validation", "paper_validation_drain",
-                                  "paper_validation_q2000"])
+                                  "paper_validation_q2000", "paper_validation_q2000_b"])
 def test_the_committed_validation_scenes_are_their_designs_and_rest_on_their_base(name):
     """The committed validation folders hold every run of their design (by content
     key), laid out as ``rom train --validation`` reads them, and the DEM's own piles
