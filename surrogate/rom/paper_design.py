@@ -408,17 +408,25 @@ VALIDATION_PILE = PileSpec("validation_1600t", 19_000, seed=3)
 1.7 kt and beside the held-out scenes' 1.5 kt)."""
 
 
+def _validation_design(name: str, pile: PileSpec, scenes, duration: float,
+                       first_seed: int) -> Design:
+    """A validation design: ``scenes`` run for ``duration`` [s] from the laid-out
+    ``pile``, each as ``VALIDATION_REPLICAS`` DEM replicas (``_heldout_runs``)."""
+    cfg = paper_config()
+    return Design(name, cfg, paper_grid(cfg), (pile,),
+                  _heldout_runs(f"pile:{pile.name}", scenes, duration, first_seed=first_seed,
+                                replicas=VALIDATION_REPLICAS),
+                  checkpoint_interval=20.0, keep_start_states=True)
+
+
 def paper_validation_design() -> Design:
     """A validation scene for choosing among fitted models by tracking (``rom train
     --validation``), apart from both the design they are fitted on and the held-out
     scenes they are scored on (a train / validation / test split): a laid-out pile
     of 19,000 disks (about 1.6 kt) run for 180 s at 1.6 t/s in and out, as
     ``VALIDATION_REPLICAS`` DEM replicas."""
-    cfg = paper_config()
-    return Design("paper_validation", cfg, paper_grid(cfg), (VALIDATION_PILE,),
-                  _heldout_runs(f"pile:{VALIDATION_PILE.name}", VALIDATION_SCENES, 180.0,
-                                first_seed=300, replicas=VALIDATION_REPLICAS),
-                  checkpoint_interval=20.0, keep_start_states=True)
+    return _validation_design("paper_validation", VALIDATION_PILE, VALIDATION_SCENES, 180.0,
+                              first_seed=300)
 
 
 VALIDATION_DRAIN_SCENES = (("validation_out2000_in300", 2000.0, 300.0),)
@@ -437,12 +445,9 @@ def paper_validation_drain_design() -> Design:
     0.3 t/s of inflow for ``VALIDATION_DRAIN_DURATION`` s, as
     ``VALIDATION_REPLICAS`` DEM replicas. Where the first validation scene holds
     its mass, this one tests what a model does to a pile it empties."""
-    cfg = paper_config()
-    return Design("paper_validation_drain", cfg, paper_grid(cfg), (VALIDATION_PILE,),
-                  _heldout_runs(f"pile:{VALIDATION_PILE.name}", VALIDATION_DRAIN_SCENES,
-                                VALIDATION_DRAIN_DURATION, first_seed=310,
-                                replicas=VALIDATION_REPLICAS),
-                  checkpoint_interval=20.0, keep_start_states=True)
+    return _validation_design("paper_validation_drain", VALIDATION_PILE,
+                              VALIDATION_DRAIN_SCENES, VALIDATION_DRAIN_DURATION,
+                              first_seed=310)
 
 
 VALIDATION_Q2000_SCENES = (("validation_q2000", 2000.0, 2000.0),)
@@ -457,11 +462,8 @@ def paper_validation_q2000_design() -> Design:
     settled start) for 180 s, as ``VALIDATION_REPLICAS`` DEM replicas. The other two
     run 1.6 t/s and a drain; fits they cannot tell apart can track 2 t/s very
     differently (surrogate/rom/README.md, "Three validation scenes")."""
-    cfg = paper_config()
-    return Design("paper_validation_q2000", cfg, paper_grid(cfg), (VALIDATION_PILE,),
-                  _heldout_runs(f"pile:{VALIDATION_PILE.name}", VALIDATION_Q2000_SCENES, 180.0,
-                                first_seed=320, replicas=VALIDATION_REPLICAS),
-                  checkpoint_interval=20.0, keep_start_states=True)
+    return _validation_design("paper_validation_q2000", VALIDATION_PILE,
+                              VALIDATION_Q2000_SCENES, 180.0, first_seed=320)
 
 
 VALIDATION_Q2000_B_PILE = PileSpec("validation_b_1500t", 17_500, seed=4)
@@ -478,12 +480,8 @@ def paper_validation_q2000_b_design() -> Design:
     (``VALIDATION_Q2000_B_PILE``), as ``VALIDATION_REPLICAS`` DEM replicas. With one
     pile, fits that track the validation pile's 2 t/s scene alike can track another
     pile's very differently (surrogate/rom/README.md, "A second pile at 2 t/s")."""
-    cfg = paper_config()
-    return Design("paper_validation_q2000_b", cfg, paper_grid(cfg), (VALIDATION_Q2000_B_PILE,),
-                  _heldout_runs(f"pile:{VALIDATION_Q2000_B_PILE.name}",
-                                VALIDATION_Q2000_B_SCENES, 180.0, first_seed=330,
-                                replicas=VALIDATION_REPLICAS),
-                  checkpoint_interval=20.0, keep_start_states=True)
+    return _validation_design("paper_validation_q2000_b", VALIDATION_Q2000_B_PILE,
+                              VALIDATION_Q2000_B_SCENES, 180.0, first_seed=330)
 
 
 def reduced_heldout_design() -> Design:
