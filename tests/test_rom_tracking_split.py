@@ -9,7 +9,7 @@ import pytest
 
 from surrogate.rom import evaluate, heldout_layout, tracking_split
 from surrogate.rom.model import RomModel
-from surrogate.rom.storage import FIXED_GRID_MODEL
+from surrogate.rom.storage import DEFAULT_MODEL, FIXED_GRID_MODEL
 
 ROOT = Path(__file__).resolve().parents[1]
 HELDOUT = ROOT / "surrogate" / "rom" / "data" / "paper_heldout"
@@ -46,9 +46,13 @@ def test_counting_the_inflow_as_one_id_can_only_lower_the_error():
     assert full == pytest.approx(0.25) and merged == pytest.approx(0.125)
 
 
-def test_the_split_of_the_shipped_fixed_grid_rom_on_a_held_out_scene(tmp_path):
+@pytest.mark.parametrize("model_args, model_file",
+                         [([], DEFAULT_MODEL), (["--model", str(FIXED_GRID_MODEL)], FIXED_GRID_MODEL)],
+                         ids=["default", "fixed-grid"])
+def test_the_split_of_a_shipped_rom_on_a_held_out_scene(tmp_path, model_args, model_file):
+    """Without ``--model`` the split is the default ROM's; with it, the file's."""
     code = tracking_split.main(["--data", str(HELDOUT), "--scene", "heldout_q2000",
-                                "--out", str(tmp_path)])
+                                "--out", str(tmp_path)] + model_args)
     assert code == 0
     result = json.loads((tmp_path / "tracking_split.json").read_text())["heldout_q2000"]
     assert result["replicas"] == 3
@@ -67,7 +71,7 @@ def test_the_split_of_the_shipped_fixed_grid_rom_on_a_held_out_scene(tmp_path):
         scene = folder / "heldout_q2000"
         replicas = evaluate.stable_replicas(scene)
         t0 = float(replicas[0]["t0"])
-        rom, _, _ = evaluate.run_storage("rom", scene, RomModel.load(FIXED_GRID_MODEL))
+        rom, _, _ = evaluate.run_storage("rom", scene, RomModel.load(model_file))
         scored = evaluate.ensemble_score(rom, [evaluate.outflow_of(r) for r in replicas], t0,
                                          t0 + evaluate.scenario_duration(scene))
     assert result["tracking_error"]["rom"] == pytest.approx(scored["tracking_error"], rel=1e-12)

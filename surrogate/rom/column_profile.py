@@ -74,9 +74,9 @@ def profile(data, scene: str, model=None, options: dict | None = None,
     from surrogate.rom import evaluate, heldout_layout
     from surrogate.rom.grid import mass_field
     from surrogate.rom.model import RomModel
-    from surrogate.rom.storage import FIXED_GRID_MODEL
+    from surrogate.rom.storage import DEFAULT_MODEL
 
-    model = RomModel.load(model or FIXED_GRID_MODEL)
+    model = RomModel.load(model or DEFAULT_MODEL)
     with heldout_layout.scenes_laid_out(data, [scene]) as (folder, _):
         heldout = folder / scene
         replicas = [evaluate.load_run(heldout / f"{name}.npz")
@@ -265,8 +265,8 @@ def main(argv=None) -> int:
     parser.add_argument("--scene", required=True, help="held-out scene, e.g. heldout_q2000")
     parser.add_argument("--out", required=True, type=Path, help="output folder")
     parser.add_argument("--model", default=None,
-                        help="ROM model file (default: the shipped fixed-grid ROM, "
-                             "data/paper_rom.npz)")
+                        help="ROM model file (default: the default ROM, "
+                             "data/paper_rom_loose.npz)")
     parser.add_argument("--velocity-model", choices=("regressed", "kinematic", "hybrid"),
                         default="regressed", help="RomStorage's velocity_model (regressed)")
     parser.add_argument("--rest-fraction", type=float, default=None,

@@ -15,7 +15,7 @@ design does (``paper_design.build_pile``), runs in the DEM for ``seconds`` with
 its feeder at ``rate`` [kg/s] and the same rate fed at the inlet, one control
 step (``doe.CONTROL_STEP``) of the lot feed at a time (``paper_design.emit_feed``).
 At each step the step's newcomers also go to the ROM's surface layer (the
-shipped fixed-grid model's DEM and container, as ``RomStorage`` builds it) over the DEM's
+model's DEM and container, as ``RomStorage`` builds it) over the DEM's
 bulk as it stands at their entry (``doe.bulk_only``), for one step, and those
 that joined are deposited on that bulk's surface: where the ROM puts them into
 its bulk. A DEM newcomer is read ``doe.BULK_AGE`` (4 s) after its entry, the age
@@ -81,18 +81,18 @@ def measure(design, pile: str, rate: float, seconds: int, seed: int = 0, model=N
             progress=None) -> dict:
     """One measurement (module docstring) on ``design``'s pile ``pile`` fed and drained
     at ``rate`` [kg/s] for ``seconds`` [s]; ``seed`` draws the feed's lots and the
-    surface layer's random numbers; ``model`` (default the shipped fixed-grid ROM) gives the
-    surface layer's DEM and container."""
+    surface layer's random numbers; ``model`` (default the default ROM,
+    ``storage.DEFAULT_MODEL``) gives the surface layer's DEM and container."""
     from surrogate.rom import doe
     from surrogate.rom import paper_design as pd
     from surrogate.rom.model import RomModel
-    from surrogate.rom.storage import FIXED_GRID_MODEL, _dem_config
+    from surrogate.rom.storage import DEFAULT_MODEL, _dem_config
     from surrogate.rom.surface import column_width, deposit, surface_heights
     from surrogate.rom.surface_dem import SurfaceDem
 
     rate = check_run(design, pile, rate, seconds)
     tic, cpu0 = time.perf_counter(), time.process_time()
-    model = RomModel.load(model or FIXED_GRID_MODEL)
+    model = RomModel.load(model or DEFAULT_MODEL)
     container = model.container
     dem, _ = pd.build_pile(design, design.pile(pile))
     surface = SurfaceDem(_dem_config(model.dem_config), container,
@@ -177,8 +177,8 @@ def main(argv=None) -> int:
     parser.add_argument("--run", action="append", default=None, metavar="PILE:RATE:SECONDS:SEED",
                         help="one measurement (repeatable; default the paper design's four)")
     parser.add_argument("--model", default=None,
-                        help="ROM model file (default: the shipped fixed-grid ROM, "
-                             "data/paper_rom.npz)")
+                        help="ROM model file (default: the default ROM, "
+                             "data/paper_rom_loose.npz)")
     parser.add_argument("--workers", type=int, default=2, help="processes (default 2)")
     args = parser.parse_args(argv)
 

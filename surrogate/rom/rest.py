@@ -130,17 +130,17 @@ def main(argv=None) -> int:
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", required=True, help="exported training design folder")
     parser.add_argument("--model", default=None,
-                        help="ROM model file (default: the shipped fixed-grid ROM, "
-                             "data/paper_rom.npz)")
+                        help="ROM model file (default: the default ROM, "
+                             "data/paper_rom_loose.npz)")
     args = parser.parse_args(argv)
     from surrogate.rom.model import RomModel
-    from surrogate.rom.storage import FIXED_GRID_MODEL
+    from surrogate.rom.storage import DEFAULT_MODEL
 
     try:
         if not sorted(Path(args.data, "train").glob("*.npz")):
             raise ValidationError("--data", "a design folder with train/*.npz sample files",
                                   f"none under {args.data}")
-        result = fit(args.data, RomModel.load(args.model or FIXED_GRID_MODEL))
+        result = fit(args.data, RomModel.load(args.model or DEFAULT_MODEL))
     except (ValidationError, OSError) as error:
         print(f"rest: error: {error}", file=sys.stderr)
         return 2

@@ -125,9 +125,9 @@ def split(data, scenes=None, model=None, options: dict | None = None, seed: int 
     ``data``: ``{scene: result}``."""
     from surrogate.rom import heldout_layout
     from surrogate.rom.model import RomModel
-    from surrogate.rom.storage import FIXED_GRID_MODEL
+    from surrogate.rom.storage import DEFAULT_MODEL
 
-    model = RomModel.load(model or FIXED_GRID_MODEL)
+    model = RomModel.load(model or DEFAULT_MODEL)
     with heldout_layout.scenes_laid_out(data, scenes) as (folder, names):
         return {name: split_scene(model, folder / name, options, seed) for name in names}
 
@@ -163,8 +163,8 @@ def main(argv=None) -> int:
     parser.add_argument("--scene", action="append", default=None,
                         help="held-out scene, e.g. heldout_q2000 (repeatable; default all)")
     parser.add_argument("--model", default=None,
-                        help="ROM model file (default: the shipped fixed-grid ROM, "
-                             "data/paper_rom.npz)")
+                        help="ROM model file (default: the default ROM, "
+                             "data/paper_rom_loose.npz)")
     parser.add_argument("--rest-fraction", type=float, default=None,
                         help="RomStorage's rest_fraction (default: the model file's; 0: off; "
                              "surrogate.rom.rest)")

@@ -18,7 +18,7 @@ Two more fields (``--field``) tell which part of the fit limits it:
 - ``modes:K``: the replica's field projected on the first K modes of the
   uncentred POD of the training design's velocity samples (the basis the
   paper's regression, Wallin and Servin 2021, predicts in; ``RomModel``'s
-  ``pod_basis``, so K = 4 is the shipped fixed-grid model's own basis): what a
+  ``pod_basis``, so K = 4 is the fixed-grid model's own basis, data/paper_rom.npz): what a
   fit that got every coefficient of a K-mode basis right would reach;
 - ``model``: the model's prediction at the replica's own mass field (window
   mean as above) and the storage's rates, with its resting bulk: the fit
@@ -43,7 +43,7 @@ For each scene it reports, from ``evaluate.ensemble_score`` and
 ``evaluate.noise_floor`` (tracking error, ``surrogate.rom.metrics``, issue 10):
 
 - ``dem_noise_floor``: the replicas against each other, every pair once;
-- ``rom``: the model (default the shipped fixed-grid ROM; its fitted field, its own
+- ``rom``: the model (default the default ROM, ``storage.DEFAULT_MODEL``; its fitted field, its own
   density), every ROM seed against every replica;
 - ``bounds``: per (field, half window, packing, landing spread) the ROM with each
   replica's field, every (replica, ROM seed) against each other replica;
@@ -308,7 +308,7 @@ def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=PACKINGS_SCORED
     basis is ``velocity_basis`` of ``TRAINING_DESIGN``."""
     from surrogate.rom import heldout_layout
     from surrogate.rom.model import RomModel
-    from surrogate.rom.storage import FIXED_GRID_MODEL
+    from surrogate.rom.storage import DEFAULT_MODEL
 
     rom_seeds = evaluate.check_rom_seeds(rom_seeds)
     for half_window in half_windows:
@@ -330,7 +330,7 @@ def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=PACKINGS_SCORED
         packing_density = settled_density(TRAINING_DESIGN)["density"]
     packing_density = float(check_finite_range("--packing-density", packing_density, 0.0,
                                                low_open=True, unit="kg/m^2"))
-    model = RomModel.load(model or FIXED_GRID_MODEL)
+    model = RomModel.load(model or DEFAULT_MODEL)
     if basis is not None and basis.shape[1] != 2 * model.grid.n_cells:
         raise ValidationError("--field", "modes:K with a model on the grid of "
                               f"{TRAINING_DESIGN.name}, whose velocities give the modes",
@@ -432,8 +432,8 @@ def main(argv=None) -> int:
     parser.add_argument("--rom-seeds", type=int, default=ROM_SEEDS,
                         help=f"ROM seeds 0 .. N-1 per run, 1-100 ({ROM_SEEDS})")
     parser.add_argument("--model", default=None,
-                        help="ROM model file (default: the shipped fixed-grid ROM, "
-                             "data/paper_rom.npz)")
+                        help="ROM model file (default: the default ROM, "
+                             "data/paper_rom_loose.npz)")
     args = parser.parse_args(argv)
 
     def progress(message: str) -> None:
