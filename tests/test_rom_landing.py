@@ -59,3 +59,13 @@ def test_another_design_without_runs_exits_2_naming_run(tmp_path, capsys):
     assert landing.main(["--design", "reduced", "--out", str(tmp_path)]) == 2
     assert "--run" in capsys.readouterr().err
     assert not (tmp_path / "landing.json").exists()
+
+
+def test_a_missing_model_file_exits_2_before_any_worker_starts(tmp_path, capsys):
+    code = landing.main(["--design", "reduced", "--run", "base_small:1000:8:0", "--out",
+                         str(tmp_path), "--model", str(tmp_path / "none.npz")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert err.count("must be an existing model file") == 1  # once, not once per worker
+    assert "none.npz" in err
+    assert "measurements on" not in err and not (tmp_path / "landing.json").exists()

@@ -197,6 +197,9 @@ def main(argv=None) -> int:
         check_finite_range("--workers", args.workers, 1)
         for pile, rate, seconds, _ in runs:  # refuse a bad run before any DEM starts
             check_run(design, pile, rate, seconds, field="--run")
+        if args.model is not None:  # and a bad model file, once, not once per worker
+            from surrogate.rom.model import RomModel
+            RomModel.load(args.model)
         calls = [(_task, {"design": args.design, "pile": pile, "rate": rate,
                           "seconds": seconds, "seed": seed, "model": args.model})
                  for pile, rate, seconds, seed in runs]
