@@ -498,6 +498,11 @@ def test_train_chooses_by_tracking_on_validation_scenes(reduced_run, heldout_run
     again = validation.tracking_scores({"chosen": alone}, tmp_path / "validation", 1)
     assert again["chosen"]["tracking_error"] == record["validation_tracking_error"]
     assert again["chosen"]["hanging_mass_share"] == hanging[f"2/2/{model.ridge:g}"]
+    # scored in a worker process (rom train --workers): the very same scores
+    assert validation.tracking_scores({"chosen": alone}, tmp_path / "validation", 1,
+                                      workers=2) == again
+    with pytest.raises(ValidationError, match="workers"):
+        validation.tracking_scores({"chosen": alone}, tmp_path / "validation", 1, workers=0)
     # at limit 0 only a candidate hanging nothing qualifies; with none, tracking alone
     strict = evaluate.train(tmp_path / "train_data", None, n_mass_modes=2, n_velocity_modes=2,
                             validation=[tmp_path / "validation"], storage_options=options,

@@ -11,6 +11,9 @@ from minetwin import executors
 PACKINGS = ("avalanche", "column", "loose", "none")
 """``surrogate.rom.storage.PACKINGS``, named here so ``--help`` needs no numba import."""
 
+TRAIN_WORKERS = 2
+"""Validation scenes ``rom train`` scores at once by default (the machine's two cores)."""
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
@@ -62,6 +65,9 @@ def register(subparsers) -> None:
     train.add_argument("--rom-seeds", type=int, default=None, metavar="N",
                        help="with --validation: ROM seeds 0 .. N-1 per scene (default 2; "
                             "1-100)")
+    train.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="with --validation: scenes scored at once, in processes of this "
+                            "machine (default 2; the model is the same for any N)")
     train.set_defaults(handler=run_train)
     evaluate = sub.add_parser(
         "evaluate", help="score a ROM on the held-out DEM scenario; writes summary.json",
@@ -233,6 +239,10 @@ def run_train(args) -> int:
         raise ValidationError("--hanging-limit", "only with --validation")
     if args.select_by is not None and args.validation is None:
         raise ValidationError("--select-by", "only with --validation")
+    if args.workers is not None and args.validation is None:
+        raise ValidationError("--workers", "only with --validation")
+    if args.workers is not None and args.workers < 1:
+        raise ValidationError("--workers", ">= 1", f"got {args.workers}")
     model = train(args.data, args.out, args.mass_modes, args.velocity_modes, args.ridge,
                   progress=_progress, target=args.target, flux_floor=args.flux_floor,
                   fill_law=args.fill_law, rest_fraction=args.rest_fraction,
@@ -245,7 +255,8 @@ def run_train(args) -> int:
                   dispersivity=args.dispersivity,
                   hanging_limit=(HANGING_LIMIT if args.hanging_limit is None
                                  else args.hanging_limit),
-                  select_by=args.select_by or "mean")
+                  select_by=args.select_by or "mean",
+                  workers=TRAIN_WORKERS if args.workers is None else args.workers)
     print(f"trained on {model.n_samples} samples, grid {model.grid.nx}x{model.grid.ny}, "
           f"modes {model.n_mass_modes}/{model.n_velocity_modes}, ridge {model.ridge:g}, "
           f"resting share {model.rest_fraction:g}; wrote {args.out}")

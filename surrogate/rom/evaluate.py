@@ -604,7 +604,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
           validation=None, storage_options: dict | None = None,
           rom_seeds: int = VALIDATION_ROM_SEEDS,
           dispersivity: float | None = None,
-          hanging_limit: float = HANGING_LIMIT, select_by: str = "mean") -> RomModel:
+          hanging_limit: float = HANGING_LIMIT, select_by: str = "mean",
+          workers: int = 1) -> RomModel:
     """Fit a ``RomModel`` on ``directory``'s training samples (optionally save it).
 
     ``target`` (default "velocity"): the field the regression fits (``RomModel``);
@@ -634,7 +635,8 @@ def train(directory, out=None, n_mass_modes: int | None = None,
     emptied cells by at most ``hanging_limit`` [-] at every scene's end (default
     ``surrogate.rom.hanging.HANGING_LIMIT``; should none, among all, and the
     record says so: ``hanging_limit_met``); ``select_by`` (``SELECT_BY``, default
-    "mean") says what is minimised there.
+    "mean") says what is minimised there; ``workers`` (default 1) validation scenes
+    are scored at once, in processes of this machine, to the same scores.
     The training range of the mass distribution's residual is the larger of
     the training states' own and ``leave_one_run_out_residual`` (both in
     ``validation``).
@@ -697,7 +699,7 @@ def train(directory, out=None, n_mass_modes: int | None = None,
                      registration=registered),
                 directory, samples, meta.get("dem_config"), {}, rest_fraction,
                 storage_options, residuals=residuals, walk=dispersivity)
-        scores = tracking_scores(fitted, validation, rom_seeds, progress)
+        scores = tracking_scores(fitted, validation, rom_seeds, progress, workers=workers)
         resting = [key for key, entry in scores.items()
                    if entry["hanging_mass_share"] <= hanging_limit]
         criterion = "tracking_error" if select_by == "mean" else "floor_excess"
