@@ -73,10 +73,9 @@ def profile(data, scene: str, model=None, options: dict | None = None,
     from surrogate.dem import Dem
     from surrogate.rom import evaluate, heldout_layout
     from surrogate.rom.grid import mass_field
-    from surrogate.rom.model import RomModel
-    from surrogate.rom.storage import DEFAULT_MODEL
+    from surrogate.rom.storage import load_model
 
-    model = RomModel.load(model or DEFAULT_MODEL)
+    model = load_model(model)
     with heldout_layout.scenes_laid_out(data, [scene]) as (folder, _):
         heldout = folder / scene
         replicas = [evaluate.load_run(heldout / f"{name}.npz")

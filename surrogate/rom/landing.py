@@ -85,14 +85,13 @@ def measure(design, pile: str, rate: float, seconds: int, seed: int = 0, model=N
     ``storage.DEFAULT_MODEL``) gives the surface layer's DEM and container."""
     from surrogate.rom import doe
     from surrogate.rom import paper_design as pd
-    from surrogate.rom.model import RomModel
-    from surrogate.rom.storage import DEFAULT_MODEL, _dem_config
+    from surrogate.rom.storage import _dem_config, load_model
     from surrogate.rom.surface import column_width, deposit, surface_heights
     from surrogate.rom.surface_dem import SurfaceDem
 
     rate = check_run(design, pile, rate, seconds)
     tic, cpu0 = time.perf_counter(), time.process_time()
-    model = RomModel.load(model or DEFAULT_MODEL)
+    model = load_model(model)
     container = model.container
     dem, _ = pd.build_pile(design, design.pile(pile))
     surface = SurfaceDem(_dem_config(model.dem_config), container,

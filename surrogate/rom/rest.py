@@ -133,14 +133,13 @@ def main(argv=None) -> int:
                         help="ROM model file (default: the default ROM, "
                              "data/paper_rom_loose.npz)")
     args = parser.parse_args(argv)
-    from surrogate.rom.model import RomModel
-    from surrogate.rom.storage import DEFAULT_MODEL
+    from surrogate.rom.storage import load_model
 
     try:
         if not sorted(Path(args.data, "train").glob("*.npz")):
             raise ValidationError("--data", "a design folder with train/*.npz sample files",
                                   f"none under {args.data}")
-        result = fit(args.data, RomModel.load(args.model or DEFAULT_MODEL))
+        result = fit(args.data, load_model(args.model))
     except (ValidationError, OSError) as error:
         print(f"rest: error: {error}", file=sys.stderr)
         return 2

@@ -220,17 +220,25 @@ scene"). Without packing its drained pile leaves bulk hanging over emptied cells
 
 LOOSE_MODEL = Path(__file__).parent / "data" / "paper_rom_loose.npz"
 """The registered fit (``minetwin rom train --registration height``) under the loose
-packing (``surface.settle_loose``, void gap 0.3 m), chosen on the three validation
+packing (``surface.settle_loose``, void gap 0.3 m), chosen on the four validation
 scenes by its largest excess over a scene's DEM noise floor (``--select-by
 floor-excess``, three DEM replicas per scene) among fits whose bulk rests on its base
 (the regenerating command in its ``provenance``; surrogate/rom/README.md, "Loose
-packing and three validation scenes" and "A third replica per validation scene")."""
+packing and three validation scenes", "A third replica per validation scene" and "A
+second pile at 2 t/s")."""
 
 DEFAULT_MODEL = LOOSE_MODEL
 """The ROM a stockpile runs when no model file is named: of the shipped files, the one
 that tracks best on the validation scenes and on every held-out scene with its piles
 resting on their base (surrogate/rom/README.md, "Loose packing and three validation
 scenes")."""
+
+
+def load_model(model=None) -> RomModel:
+    """The model file ``model`` names (a path), or ``DEFAULT_MODEL`` when it names none:
+    what the tools that study a ROM load, so that they study the one a stockpile runs."""
+    return RomModel.load(model or DEFAULT_MODEL)
+
 
 RANGE_CHECK_INTERVAL = 10.0
 """Seconds between checks of the ROM inputs against the training ranges."""

@@ -124,10 +124,9 @@ def split(data, scenes=None, model=None, options: dict | None = None, seed: int 
     """``split_scene`` on ``scenes`` (default all) of the exported held-out design
     ``data``: ``{scene: result}``."""
     from surrogate.rom import heldout_layout
-    from surrogate.rom.model import RomModel
-    from surrogate.rom.storage import DEFAULT_MODEL
+    from surrogate.rom.storage import load_model
 
-    model = RomModel.load(model or DEFAULT_MODEL)
+    model = load_model(model)
     with heldout_layout.scenes_laid_out(data, scenes) as (folder, names):
         return {name: split_scene(model, folder / name, options, seed) for name in names}
 

@@ -307,8 +307,7 @@ def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=PACKINGS_SCORED
     DEM's mean settled density on ``TRAINING_DESIGN``, the ``modes:K`` fields'
     basis is ``velocity_basis`` of ``TRAINING_DESIGN``."""
     from surrogate.rom import heldout_layout
-    from surrogate.rom.model import RomModel
-    from surrogate.rom.storage import DEFAULT_MODEL
+    from surrogate.rom.storage import load_model
 
     rom_seeds = evaluate.check_rom_seeds(rom_seeds)
     for half_window in half_windows:
@@ -330,7 +329,7 @@ def bound(data, scenes=None, half_windows=HALF_WINDOWS, packings=PACKINGS_SCORED
         packing_density = settled_density(TRAINING_DESIGN)["density"]
     packing_density = float(check_finite_range("--packing-density", packing_density, 0.0,
                                                low_open=True, unit="kg/m^2"))
-    model = RomModel.load(model or DEFAULT_MODEL)
+    model = load_model(model)
     if basis is not None and basis.shape[1] != 2 * model.grid.n_cells:
         raise ValidationError("--field", "modes:K with a model on the grid of "
                               f"{TRAINING_DESIGN.name}, whose velocities give the modes",
